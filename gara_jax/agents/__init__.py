@@ -1,0 +1,1 @@
+"""Learners: the goal-conditioned low-level DQN, high-level tables and planner, forward model."""

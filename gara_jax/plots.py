@@ -1,0 +1,116 @@
+"""Figures: success curves with confidence bands, and learned partitions over the maze.
+
+Matplotlib with the Agg backend (no display needed). Host-side only.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.patches import Rectangle  # noqa: E402
+
+from gara_jax.results import mean_ci95  # noqa: E402
+
+# Velocity ranges narrower than the full [-1, 1] count as a split on that component.
+_VEL_FULL = (-1.0, 1.0)
+
+
+def plot_success_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path,
+                        title: str = "Average success rate on the U-shaped maze") -> None:
+    """One line per method: seed-mean greedy success against env steps, with 95% CI bands.
+
+    ``curves`` maps a method name to ``(env_steps [E], success [n_seeds, E])``.
+
+    Example:
+        >>> import tempfile, os
+        >>> d = tempfile.mkdtemp()
+        >>> plot_success_curves({"m": (np.arange(3), np.ones((2, 3)))}, os.path.join(d, "c.png"))
+    """
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    for name, (steps, success) in curves.items():
+        success = np.asarray(success, dtype=np.float64)
+        mean, half = mean_ci95(success, axis=0)
+        line, = ax.plot(steps, mean, label=f"{name} ({success.shape[0]} seeds)")
+        ax.fill_between(steps, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1),
+                        color=line.get_color(), alpha=0.2, linewidth=0)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel("greedy success rate")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best")
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
+def _velocity_arrow(lo: float, hi: float, eps: float = 1e-6) -> str:
+    """Arrow glyph for one velocity component's range: '' when unsplit, '+', '-', or '±'."""
+    if lo <= _VEL_FULL[0] + eps and hi >= _VEL_FULL[1] - eps:
+        return ""
+    if lo >= -eps:
+        return "+"
+    if hi <= eps:
+        return "-"
+    return "±"
+
+
+def draw_partition(ax, lo, hi, count: int, env_params, title: str = "") -> None:
+    """Draw ``count`` goal boxes over (x, y) with the maze's walls and exit.
+
+    Boxes split on a velocity component get an arrow for its sign: → / ← for vx, ↑ / ↓ for vy
+    (↔ / ↕ when the range straddles 0 without covering [-1, 1]). Boxes whose (x, y) rectangles
+    coincide stack their labels.
+    """
+    lo = np.asarray(lo)[:count]
+    hi = np.asarray(hi)[:count]
+    n = float(np.asarray(env_params.n))
+    ax.add_patch(Rectangle((0, 0), n, n, fill=False, edgecolor="black", linewidth=1.5))
+    for x0, x1, y0, y1 in np.asarray(env_params.walls, dtype=np.float64):
+        x0, x1, y0, y1 = max(x0, 0), min(x1, n), max(y0, 0), min(y1, n)
+        ax.add_patch(Rectangle((x0, y0), max(x1 - x0, 0.03), max(y1 - y0, 0.03),
+                               facecolor="dimgray", edgecolor="black", zorder=3))
+    ex, ey = np.asarray(env_params.exit, dtype=np.float64)
+    w = float(np.asarray(env_params.exit_half_width))
+    ax.add_patch(Rectangle((ex - w, ey - w), 2 * w, 2 * w, facecolor="red", alpha=0.6, zorder=2))
+    seen: dict[tuple, int] = {}
+    glyph_x = {"+": "→", "-": "←", "±": "↔", "": ""}
+    glyph_y = {"+": "↑", "-": "↓", "±": "↕", "": ""}
+    for g in range(count):
+        x0, y0 = max(lo[g, 0], 0), max(lo[g, 1], 0)
+        x1, y1 = min(hi[g, 0], n), min(hi[g, 1], n)
+        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="tab:green", alpha=0.12,
+                               edgecolor="darkgreen", linewidth=1.0, zorder=1))
+        label = glyph_x[_velocity_arrow(lo[g, 2], hi[g, 2])] + glyph_y[_velocity_arrow(lo[g, 3],
+                                                                                     hi[g, 3])]
+        key = tuple(np.round([x0, y0, x1, y1], 6))
+        slot = seen.get(key, 0)
+        seen[key] = slot + 1
+        ax.text(x0 + 0.05 * (x1 - x0) + 0.0, y1 - 0.12 - 0.2 * slot, f"{g}{label}", fontsize=7,
+                va="top", ha="left", zorder=4)
+    ax.set_xlim(-0.05, n + 0.05)
+    ax.set_ylim(-0.05, n + 0.05)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x")
+    ax.set_ylabel("y")
+    ax.set_title(title, fontsize=9)
+
+
+def plot_partitions(snapshots: Sequence[tuple[int, np.ndarray, np.ndarray, int]], env_params,
+                    path, suptitle: str = "") -> None:
+    """One panel per ``(step, lo, hi, count)`` snapshot, side by side."""
+    k = len(snapshots)
+    fig, axes = plt.subplots(1, k, figsize=(3.2 * k, 3.6), dpi=120, squeeze=False)
+    for ax, (step, lo, hi, count) in zip(axes[0], snapshots, strict=True):
+        draw_partition(ax, lo, hi, int(count), env_params,
+                       title=f"after {int(step):,} steps ({int(count)} goals)")
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

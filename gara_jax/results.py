@@ -1,0 +1,124 @@
+"""Results of multi-seed runs: confidence intervals, summaries, CSV/JSON files written atomically.
+
+Everything here is host-side NumPy. Metrics arrays are ``[n_seeds, n_epochs]`` as returned by
+:func:`gara_jax.train_many`.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+# Two-sided 95% Student-t quantiles for small seed counts (df = n - 1); normal beyond 30.
+_T95 = {1: 12.706, 2: 4.303, 3: 3.182, 4: 2.776, 5: 2.571, 6: 2.447, 7: 2.365, 8: 2.306,
+        9: 2.262, 10: 2.228, 11: 2.201, 12: 2.179, 13: 2.160, 14: 2.145, 15: 2.131, 16: 2.120,
+        17: 2.110, 18: 2.101, 19: 2.093, 20: 2.086, 21: 2.080, 22: 2.074, 23: 2.069, 24: 2.064,
+        25: 2.060, 26: 2.056, 27: 2.052, 28: 2.048, 29: 2.045, 30: 2.042}
+
+CSV_COLUMNS = ("method", "seed", "env_step", "eval_success", "train_success", "n_goals",
+               "episode_return")
+
+
+def mean_ci95(values, axis: int = 0):
+    """Mean and the half-width of its 95% Student-t confidence interval along ``axis``.
+
+    With one sample the half-width is 0 (no spread can be estimated).
+
+    Example:
+        >>> m, h = mean_ci95(np.array([0.0, 1.0, 1.0, 0.0]))
+        >>> float(m), round(float(h), 3)
+        (0.5, 0.919)
+    """
+    values = np.asarray(values, dtype=np.float64)
+    n = values.shape[axis]
+    mean = values.mean(axis=axis)
+    if n < 2:
+        return mean, np.zeros_like(mean)
+    sem = values.std(axis=axis, ddof=1) / np.sqrt(n)
+    return mean, _T95.get(n - 1, 1.960) * sem
+
+
+def steps_to(env_steps, success, threshold: float):
+    """First env step at which the seed-mean success reaches ``threshold``; ``None`` if never.
+
+    Example:
+        >>> steps_to(np.array([[10, 20, 30]]), np.array([[0.2, 0.6, 0.9]]), 0.5)
+        20
+    """
+    mean = np.asarray(success, dtype=np.float64).mean(axis=0)
+    hit = np.flatnonzero(mean >= threshold)
+    return None if hit.size == 0 else int(np.asarray(env_steps)[0, hit[0]])
+
+
+def summarize(metrics: Mapping[str, np.ndarray], wall_time_s: float) -> dict:
+    """The per-method summary written to ``summary.json``.
+
+    ``final_success_mean`` / ``final_success_ci95`` are over seeds of the last epoch's greedy
+    evaluation success; ``steps_to_50`` / ``steps_to_80`` use the seed-mean curve.
+    """
+    success = np.asarray(metrics["eval_success"], dtype=np.float64)
+    steps = np.asarray(metrics["env_steps"])
+    mean, half = mean_ci95(success[:, -1])
+    return {
+        "final_success_mean": float(mean),
+        "final_success_ci95": float(half),
+        "steps_to_50": steps_to(steps, success, 0.5),
+        "steps_to_80": steps_to(steps, success, 0.8),
+        "wall_time_s": float(wall_time_s),
+        "n_seeds": int(success.shape[0]),
+        "env_steps": int(steps[0, -1]),
+        "final_n_goals_mean": float(np.mean(metrics["n_goals"][:, -1])),
+    }
+
+
+def metrics_rows(method: str, metrics: Mapping[str, np.ndarray], seeds):
+    """One CSV row per (seed, epoch), in :data:`CSV_COLUMNS` order."""
+    n_seeds, n_epochs = np.asarray(metrics["env_steps"]).shape
+    for i in range(n_seeds):
+        for e in range(n_epochs):
+            yield (method, int(seeds[i]), int(metrics["env_steps"][i, e]),
+                   float(metrics["eval_success"][i, e]), float(metrics["train_success"][i, e]),
+                   int(metrics["n_goals"][i, e]), float(metrics["episode_return"][i, e]))
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` through a temporary file and a rename: readers see the old
+    file or the complete new one, never a half-written one."""
+    path = Path(path)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json(path, obj) -> None:
+    atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
+
+
+def write_metrics_csv(path, rows) -> None:
+    """Write ``rows`` (tuples in :data:`CSV_COLUMNS` order) with a header, atomically."""
+    import io
+
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(CSV_COLUMNS)
+    writer.writerows(rows)
+    atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def read_metrics_csv(path) -> list[dict]:
+    """Rows of a ``metrics.csv`` as dicts with typed values."""
+    types = {"method": str, "seed": int, "env_step": int, "eval_success": float,
+             "train_success": float, "n_goals": int, "episode_return": float}
+    with open(path, newline="") as f:
+        return [{k: types[k](v) for k, v in row.items()} for row in csv.DictReader(f)]

@@ -1,0 +1,243 @@
+"""Axis-aligned boxes as ``(lo, hi)`` arrays: membership, volume, intersection, coverage, bisection.
+
+A box over ``D`` dimensions is a pair of arrays ``lo, hi`` of shape ``[..., D]``; every function
+here accepts any number of leading batch dimensions and broadcasts them. Boxes are closed:
+``x`` is in ``(lo, hi)`` when ``lo <= x <= hi`` in every dimension. A box with ``hi < lo`` in some
+dimension is empty (that is what :func:`intersect` returns for disjoint boxes).
+
+The array functions are pure ``jax.numpy`` (jit/vmap-able). :func:`merge_adjacent`,
+:func:`validate_boxes` and :func:`check_tiles` are host-side helpers on NumPy arrays.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import jax.numpy as jnp
+import numpy as np
+
+
+def validate_boxes(lo, hi, name: str = "box") -> tuple[np.ndarray, np.ndarray]:
+    """Check that ``lo``/``hi`` describe boxes; return them as float NumPy arrays.
+
+    Raises ``ValueError`` naming ``name`` when the shapes differ, there is no dimension axis,
+    a value is NaN or ``lo > hi`` somewhere.
+
+    Example:
+        >>> lo, hi = validate_boxes([0.0, 0.0], [1.0, 2.0], "goal")
+        >>> validate_boxes([1.0], [0.0], "goal")
+        Traceback (most recent call last):
+        ...
+        ValueError: goal: lo > hi at index (0,) (1.0 > 0.0)
+    """
+    lo = np.asarray(lo)
+    hi = np.asarray(hi)
+    if not np.issubdtype(lo.dtype, np.floating):
+        lo = lo.astype(np.float64)
+    if not np.issubdtype(hi.dtype, np.floating):
+        hi = hi.astype(np.float64)
+    if lo.shape != hi.shape:
+        raise ValueError(f"{name}: lo and hi have different shapes {lo.shape} and {hi.shape}")
+    if lo.ndim == 0:
+        raise ValueError(f"{name}: boxes need a trailing dimension axis, got scalars")
+    if np.isnan(lo).any() or np.isnan(hi).any():
+        raise ValueError(f"{name}: NaN in box bounds")
+    bad = lo > hi
+    if bad.any():
+        idx = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name}: lo > hi at index {idx} ({lo[idx]} > {hi[idx]})")
+    return lo, hi
+
+
+def contains(lo, hi, x):
+    """Whether the closed box ``[lo, hi]`` contains the point ``x`` (all shapes ``[..., D]``).
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> contains(jnp.zeros(2), jnp.ones(2), jnp.array([[1.0, 0.5], [1.1, 0.5]]))
+        Array([ True, False], dtype=bool)
+    """
+    return jnp.all((lo <= x) & (x <= hi), axis=-1)
+
+
+def volume(lo, hi):
+    """Volume of boxes ``[..., D]``; empty boxes (``hi < lo`` somewhere) have volume 0.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> float(volume(jnp.array([0.0, 0.0]), jnp.array([2.0, 3.0])))
+        6.0
+    """
+    return jnp.prod(jnp.maximum(hi - lo, 0), axis=-1)
+
+
+def intersect(lo1, hi1, lo2, hi2):
+    """Intersection of two boxes. Disjoint boxes give an empty box (``hi < lo`` somewhere),
+    whose :func:`volume` is 0 and which :func:`contains` nothing.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> a, b = jnp.array([0.0]), jnp.array([1.0])
+        >>> lo, hi = intersect(a, a + 2, b, b + 2)
+        >>> lo.tolist(), hi.tolist()
+        ([1.0], [2.0])
+    """
+    return jnp.maximum(lo1, lo2), jnp.minimum(hi1, hi2)
+
+
+def coverage(r_lo, r_hi, t_lo, t_hi):
+    """Coverage ratios ``(c1, c2)`` of a reached box ``R`` and a target box ``T``.
+
+    ``c1 = vol(R ∩ T) / vol(R)`` and ``c2 = vol(R ∩ T) / vol(T)``, both volumes taken over the
+    dimensions where ``R`` has non-zero width (SPEC.md, section 3). Dimensions where ``R`` is
+    degenerate do not enter the volumes, but ``R ∩ T`` must be non-empty there: a point
+    coordinate outside ``T``'s range makes both ratios 0 (otherwise a degenerate ``R`` lying
+    outside ``T`` would count as covering it). ``c2`` is 0 when ``T`` has zero width in a
+    dimension where ``R`` has not (then ``vol(R ∩ T)`` is 0 too). If ``R`` is a single point,
+    both ratios are 1 when it lies in ``T`` and 0 otherwise.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> c1, c2 = coverage(jnp.array([0.0, 5.0]), jnp.array([2.0, 5.0]),
+        ...                   jnp.array([1.0, 0.0]), jnp.array([5.0, 9.0]))
+        >>> float(c1), float(c2)
+        (0.5, 0.25)
+    """
+    r_w = r_hi - r_lo
+    wide = r_w > 0
+    i_w = jnp.maximum(jnp.minimum(r_hi, t_hi) - jnp.maximum(r_lo, t_lo), 0)
+    t_w = t_hi - t_lo
+    one = jnp.ones_like(r_w)
+    inter = jnp.prod(jnp.where(wide, i_w, one), axis=-1)
+    vol_r = jnp.prod(jnp.where(wide, r_w, one), axis=-1)
+    vol_t = jnp.prod(jnp.where(wide, t_w, one), axis=-1)
+    # Degenerate coordinates of R must lie inside T, else R ∩ T is empty.
+    hits = jnp.all(wide | ((t_lo <= r_lo) & (r_lo <= t_hi)), axis=-1)
+    inter = jnp.where(hits, inter, 0)
+    c1 = inter / vol_r
+    c2 = jnp.where(vol_t > 0, inter / jnp.where(vol_t > 0, vol_t, 1), 0)
+    return c1, c2
+
+
+def bisect(lo, hi, dim):
+    """Split boxes at the midpoint of dimension ``dim`` (an int or an int array of batch shape).
+
+    Returns ``((lo_a, hi_a), (lo_b, hi_b))``: ``a`` is the lower half, ``b`` the upper half; they
+    share the face at the midpoint and together tile the box.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> (la, ha), (lb, hb) = bisect(jnp.zeros(2), jnp.array([2.0, 4.0]), 1)
+        >>> ha.tolist(), lb.tolist()
+        ([2.0, 2.0], [0.0, 2.0])
+    """
+    lo = jnp.asarray(lo)
+    hi = jnp.asarray(hi)
+    dim = jnp.asarray(dim)
+    mask = jnp.arange(lo.shape[-1]) == dim[..., None]
+    mid = (lo + hi) * 0.5
+    return (lo, jnp.where(mask, mid, hi)), (jnp.where(mask, mid, lo), hi)
+
+
+def _face_merge_dim(lo1, hi1, lo2, hi2) -> int | None:
+    """The dimension along which two boxes share a full face, or None."""
+    diff = (lo1 != lo2) | (hi1 != hi2)
+    if diff.sum() != 1:
+        return None
+    d = int(np.argmax(diff))
+    if hi1[d] == lo2[d] or hi2[d] == lo1[d]:
+        return d
+    return None
+
+
+def merge_adjacent(lo, hi) -> tuple[np.ndarray, np.ndarray]:
+    """Merge boxes that share a full face until no two do (host-side, NumPy).
+
+    Two boxes merge when they agree in all dimensions but one and touch along it; their union
+    is then a box. Greedy and deterministic: the lowest-index pair is merged first and the union
+    takes the lower index. The result covers exactly the same set.
+
+    Example:
+        >>> import numpy as np
+        >>> lo, hi = merge_adjacent(np.array([[0.0, 0.0], [1.0, 0.0], [0.0, 1.0]]),
+        ...                         np.array([[1.0, 1.0], [2.0, 1.0], [1.0, 2.0]]))
+        >>> lo.tolist(), hi.tolist()
+        ([[0.0, 0.0], [0.0, 1.0]], [[2.0, 1.0], [1.0, 2.0]])
+    """
+    lo = np.asarray(lo)
+    hi = np.asarray(hi)
+    if lo.ndim != 2 or lo.shape != hi.shape:
+        raise ValueError(f"lo, hi: expected two arrays of shape [N, D], got {lo.shape}, {hi.shape}")
+    lo_list = [r.copy() for r in lo]
+    hi_list = [r.copy() for r in hi]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(lo_list)):
+            for j in range(i + 1, len(lo_list)):
+                d = _face_merge_dim(lo_list[i], hi_list[i], lo_list[j], hi_list[j])
+                if d is None:
+                    continue
+                lo_list[i][d] = min(lo_list[i][d], lo_list[j][d])
+                hi_list[i][d] = max(hi_list[i][d], hi_list[j][d])
+                del lo_list[j], hi_list[j]
+                merged = True
+                break
+            if merged:
+                break
+    if not lo_list:
+        return lo[:0].copy(), hi[:0].copy()
+    return np.stack(lo_list), np.stack(hi_list)
+
+
+def check_tiles(lo, hi, domain_lo, domain_hi, name: str = "boxes") -> None:
+    """Raise ``ValueError`` unless boxes ``[N, D]`` tile the domain box exactly.
+
+    Exact (no tolerance): every box lies in the domain, no two boxes overlap in their interiors,
+    and the volumes add up to the domain's, summed in rational arithmetic. Together these mean
+    the union is the whole domain. Volumes are taken over the dimensions where the domain has
+    non-zero width; in the others every box must span the domain. Host-side, ``O(N^2)``.
+
+    Example:
+        >>> import numpy as np
+        >>> check_tiles(np.array([[0.0], [1.0]]), np.array([[1.0], [3.0]]), [0.0], [3.0])
+        >>> check_tiles(np.array([[0.0], [1.0]]), np.array([[2.0], [3.0]]), [0.0], [3.0])
+        Traceback (most recent call last):
+        ...
+        ValueError: boxes: boxes 0 and 1 overlap in their interiors
+    """
+    lo, hi = validate_boxes(lo, hi, name)
+    dlo, dhi = validate_boxes(domain_lo, domain_hi, "domain")
+    if lo.ndim != 2 or lo.shape[1] != dlo.shape[-1]:
+        raise ValueError(f"{name}: expected shape [N, {dlo.shape[-1]}], got {lo.shape}")
+    outside = (lo < dlo) | (hi > dhi)
+    if outside.any():
+        i = int(np.argwhere(outside)[0][0])
+        raise ValueError(f"{name}: box {i} ({lo[i]}, {hi[i]}) leaves the domain")
+    wide = dhi > dlo
+    flat = ~wide
+    if flat.any():
+        short = (lo[:, flat] > dlo[flat]) | (hi[:, flat] < dhi[flat])
+        if short.any():
+            i = int(np.argwhere(short)[0][0])
+            raise ValueError(f"{name}: box {i} does not span the domain's degenerate dimensions")
+    n = lo.shape[0]
+    for i in range(n):
+        overlap = np.all(np.minimum(hi[i, wide], hi[i + 1:, wide])
+                         > np.maximum(lo[i, wide], lo[i + 1:, wide]), axis=-1)
+        if overlap.any():
+            j = i + 1 + int(np.argmax(overlap))
+            raise ValueError(f"{name}: boxes {i} and {j} overlap in their interiors")
+
+    def exact_volume(a, b):
+        v = Fraction(1)
+        for x, y in zip(a[wide], b[wide], strict=True):
+            v *= Fraction(float(y)) - Fraction(float(x))
+        return v
+
+    total = sum((exact_volume(lo[i], hi[i]) for i in range(n)), Fraction(0))
+    domain = exact_volume(dlo, dhi)
+    if total != domain:
+        raise ValueError(
+            f"{name}: boxes do not cover the domain (volume {float(total)} of {float(domain)})"
+        )

@@ -1,0 +1,228 @@
+"""Fixed-capacity partitions of the state space into goal boxes.
+
+A :class:`Partition` holds at most ``max_goals`` boxes in padded arrays plus a ``count``, so that
+partitions of different sizes (one per seed) stack and ``vmap``. Rows ``count ..
+max_goals - 1`` are padding: the empty box ``lo = 1, hi = -1`` in every dimension. It contains no
+state and is finite, so arithmetic on padded rows (centres, widths fed to a network) never makes
+NaNs; :func:`locate` also masks them by ``count``.
+
+A state belongs to the first box (lowest index) that contains it, as in the reference: boxes are
+closed and neighbours share faces.
+
+:func:`locate` is pure JAX. :meth:`Partition.create`, :func:`replace_box`, :func:`can_fit` and
+:func:`check_tiling` are host-side and operate on one (unbatched) partition.
+"""
+
+from __future__ import annotations
+
+import flax.struct
+import jax.numpy as jnp
+import numpy as np
+
+from gara_jax import boxes
+
+PAD_LO = 1.0
+PAD_HI = -1.0
+
+# The U-maze (SPEC.md section 1, n = 3) state space over (x, y, vx, vy).
+U_MAZE_LO = (0.0, 0.0, -1.0, -1.0)
+U_MAZE_HI = (3.0, 3.0, 1.0, 1.0)
+
+
+class PartitionFullError(ValueError):
+    """Raised when an operation would need more than ``max_goals`` boxes."""
+
+
+@flax.struct.dataclass
+class Partition:
+    """Goal boxes ``lo, hi [max_goals, D]`` of which the first ``count`` are in use.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> p = Partition.create([[0.0], [1.0]], [[1.0], [2.0]], max_goals=4)
+        >>> p.max_goals, int(p.count), locate(p, jnp.array([[0.5], [1.0], [3.0]])).tolist()
+        (4, 2, [0, 0, -1])
+    """
+
+    lo: jnp.ndarray
+    hi: jnp.ndarray
+    count: jnp.ndarray
+
+    @property
+    def max_goals(self) -> int:
+        return self.lo.shape[-2]
+
+    @property
+    def dim(self) -> int:
+        return self.lo.shape[-1]
+
+    @classmethod
+    def create(cls, lo, hi, max_goals: int, dtype=jnp.float32) -> Partition:
+        """A partition made of the boxes ``lo, hi [N, D]``, padded to ``max_goals`` rows.
+
+        Raises ``ValueError`` for invalid boxes and :class:`PartitionFullError` when
+        ``N > max_goals``. The boxes are not checked to tile anything; see :func:`check_tiling`.
+        """
+        lo, hi = boxes.validate_boxes(lo, hi, "partition boxes")
+        if lo.ndim != 2:
+            raise ValueError(f"partition boxes: expected shape [N, D], got {lo.shape}")
+        if int(max_goals) < 1:
+            raise ValueError(f"max_goals: must be at least 1, got {max_goals}")
+        n, d = lo.shape
+        if n > max_goals:
+            raise PartitionFullError(f"max_goals: {n} boxes do not fit in {max_goals}")
+        plo = np.full((max_goals, d), PAD_LO, dtype=np.float64)
+        phi = np.full((max_goals, d), PAD_HI, dtype=np.float64)
+        plo[:n] = lo
+        phi[:n] = hi
+        return cls(lo=jnp.asarray(plo, dtype), hi=jnp.asarray(phi, dtype),
+                   count=jnp.asarray(n, jnp.int32))
+
+    def boxes(self) -> tuple[np.ndarray, np.ndarray]:
+        """The ``count`` boxes in use, as NumPy arrays ``[count, D]`` (host-side)."""
+        n = int(self.count)
+        return np.asarray(self.lo)[:n], np.asarray(self.hi)[:n]
+
+
+def locate(partition: Partition, states):
+    """Index of the first box containing each state ``[..., D]``, or -1 if none does.
+
+    jit- and vmap-able (vmap over a batch of partitions works too).
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> p = gara_initial()
+        >>> locate(p, jnp.array([[0.5, 1.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0],
+        ...                      [2.0, 1.0, 0.0, 0.0], [4.0, 1.0, 0.0, 0.0]])).tolist()
+        [0, 0, 1, -1]
+    """
+    s = states[..., None, :]
+    inside = jnp.all((partition.lo <= s) & (s <= partition.hi), axis=-1)  # [..., G]
+    inside = inside & (jnp.arange(partition.max_goals) < partition.count)
+    first = jnp.argmax(inside, axis=-1).astype(jnp.int32)
+    return jnp.where(jnp.any(inside, axis=-1), first, jnp.int32(-1))
+
+
+def can_fit(partition: Partition, k: int) -> bool:
+    """Whether ``k`` more boxes fit, i.e. ``count + k <= max_goals``.
+
+    Replacing one box by ``K`` boxes adds ``K - 1``: check ``can_fit(partition, K - 1)`` before
+    :func:`replace_box` to skip (and count) a split that would not fit.
+
+    Example:
+        >>> p = gara_initial(max_goals=3)
+        >>> can_fit(p, 1), can_fit(p, 2)
+        (True, False)
+    """
+    return int(partition.count) + int(k) <= partition.max_goals
+
+
+def replace_box(partition: Partition, index: int, new_lo, new_hi) -> tuple[Partition, np.ndarray]:
+    """Replace box ``index`` by the boxes ``new_lo, new_hi [K, D]`` (host-side).
+
+    New box 0 takes ``index``; the others are appended after the last box in use. Returns the
+    new partition and the indices ``int32 [K]`` the new boxes got. The new boxes must lie inside
+    the replaced one (they are meant to tile it). Never overwrites silently: raises
+    :class:`PartitionFullError` when they do not fit (check ``can_fit(partition, K - 1)`` first
+    to skip the split instead), ``ValueError`` for a bad index or bad boxes.
+
+    Example:
+        >>> p = gara_initial(max_goals=4)
+        >>> p2, idx = replace_box(p, 1, [[1.0, 0, -1, -1], [2.0, 0, -1, -1]],
+        ...                       [[2.0, 3, 1, 1], [3.0, 3, 1, 1]])
+        >>> idx.tolist(), int(p2.count)
+        ([1, 2], 3)
+    """
+    new_lo, new_hi = boxes.validate_boxes(new_lo, new_hi, "new boxes")
+    if new_lo.ndim != 2 or new_lo.shape[1] != partition.dim or new_lo.shape[0] < 1:
+        raise ValueError(f"new boxes: expected shape [K>=1, {partition.dim}], got {new_lo.shape}")
+    count = int(partition.count)
+    index = int(index)
+    if not 0 <= index < count:
+        raise ValueError(f"index: {index} is not a box in use (count {count})")
+    k = new_lo.shape[0]
+    if not can_fit(partition, k - 1):
+        raise PartitionFullError(
+            f"max_goals: replacing box {index} by {k} boxes needs {count + k - 1} > "
+            f"{partition.max_goals}"
+        )
+    lo = np.array(partition.lo)
+    hi = np.array(partition.hi)
+    dt = lo.dtype
+    cast_lo = new_lo.astype(dt)
+    cast_hi = new_hi.astype(dt)
+    if (cast_lo < lo[index]).any() or (cast_hi > hi[index]).any():
+        raise ValueError(f"new boxes: not inside box {index} ({lo[index]}, {hi[index]})")
+    indices = np.array([index] + list(range(count, count + k - 1)), dtype=np.int32)
+    lo[indices] = cast_lo
+    hi[indices] = cast_hi
+    new = partition.replace(lo=jnp.asarray(lo), hi=jnp.asarray(hi),
+                            count=jnp.asarray(count + k - 1, jnp.int32))
+    return new, indices
+
+
+def check_tiling(partition: Partition, state_lo=U_MAZE_LO, state_hi=U_MAZE_HI) -> None:
+    """Raise ``ValueError`` with the reason unless the boxes in use tile the state space exactly.
+
+    Exact: no two boxes overlap in their interiors, all lie inside the domain and their volumes
+    add up to the domain's in rational arithmetic (see :func:`gara_jax.boxes.check_tiles`).
+    Padding rows must be the empty padding box.
+
+    Example:
+        >>> check_tiling(handcrafted())
+    """
+    lo, hi = partition.boxes()
+    pad_lo = np.asarray(partition.lo)[int(partition.count):]
+    pad_hi = np.asarray(partition.hi)[int(partition.count):]
+    if (pad_lo != PAD_LO).any() or (pad_hi != PAD_HI).any():
+        raise ValueError("partition: rows past count are not the empty padding box")
+    boxes.check_tiles(lo, hi, state_lo, state_hi, name="partition")
+
+
+def _with_full_velocity(xy_lo, xy_hi, state_lo, state_hi):
+    lo = np.array([[a, b, state_lo[2], state_lo[3]] for a, b in xy_lo], dtype=np.float64)
+    hi = np.array([[a, b, state_hi[2], state_hi[3]] for a, b in xy_hi], dtype=np.float64)
+    return lo, hi
+
+
+def handcrafted(max_goals: int = 6) -> Partition:
+    """The reference's handcrafted 6-box partition of the U-maze (SPEC.md section 2).
+
+    Boxes over (x, y) with full velocity ranges ``[-1, 1]``: ``[0,1]x[0,2]``, ``[0,1]x[2,3]``,
+    ``[1,1.5]x[2,3]``, ``[1,1.5]x[0,2]``, ``[1.5,3]x[2,3]``, ``[1.5,3]x[0,2]``.
+
+    Example:
+        >>> int(handcrafted(max_goals=8).count)
+        6
+    """
+    xy_lo = [(0, 0), (0, 2), (1, 2), (1, 0), (1.5, 2), (1.5, 0)]
+    xy_hi = [(1, 2), (1, 3), (1.5, 3), (1.5, 2), (3, 3), (3, 2)]
+    lo, hi = _with_full_velocity(xy_lo, xy_hi, U_MAZE_LO, U_MAZE_HI)
+    return Partition.create(lo, hi, max_goals)
+
+
+def gara_initial(max_goals: int = 64, state_lo=U_MAZE_LO, state_hi=U_MAZE_HI,
+                 split_x: float | None = None) -> Partition:
+    """GARA's initial 2-box partition: the state space split along ``x`` (SPEC.md section 2).
+
+    For the U-maze (the default domain) the boxes are ``[0,1]x[0,3]`` and ``[1,3]x[0,3]`` with
+    full velocity ranges. For another domain ``(state_lo, state_hi)`` over any number of
+    dimensions (``x`` first), ``x`` is split at ``split_x``, by default one third of the way
+    along, which is where the reference splits the n = 3 maze (at its first wall).
+
+    Example:
+        >>> gara_initial().boxes()[1][0].tolist()
+        [1.0, 3.0, 1.0, 1.0]
+    """
+    state_lo, state_hi = boxes.validate_boxes(state_lo, state_hi, "state_lo/state_hi")
+    if state_lo.ndim != 1:
+        raise ValueError(f"state_lo/state_hi: expected one box [D], got shape {state_lo.shape}")
+    if split_x is None:
+        split_x = state_lo[0] + (state_hi[0] - state_lo[0]) / 3.0
+    if not state_lo[0] < split_x < state_hi[0]:
+        raise ValueError(f"split_x: {split_x} is not inside ({state_lo[0]}, {state_hi[0]})")
+    lo = np.stack([state_lo, state_lo])
+    hi = np.stack([state_hi, state_hi])
+    hi[0, 0] = split_x
+    lo[1, 0] = split_x
+    return Partition.create(lo, hi, max_goals)

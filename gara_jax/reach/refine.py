@@ -1,0 +1,297 @@
+"""Goal refinement by reachability analysis (SPEC.md section 3).
+
+Given a forward model ``F(s, G) -> s'`` (a ReLU MLP on ``s ‖ G.lo ‖ G.hi``), a start box ``G_s``
+and a target box ``G_d``, split ``G_s`` into the boxes whose states reach ``G_d`` and those that
+do not. A box is analysed by bounding ``F`` over it with the goal inputs held at ``G_d``'s bounds
+(zero-width input dimensions), which gives an output box ``R``; with the coverage ratios
+``c1 = vol(R ∩ G_d) / vol(R)`` and ``c2 = vol(R ∩ G_d) / vol(G_d)``
+(:func:`gara_jax.boxes.coverage`):
+
+- ``c1 >= tau1``: the box reaches;
+- else ``c2 <= tau2``: it does not;
+- else, while its volume is above ``min_volume_ratio`` of ``G_s``'s, it is bisected at the
+  midpoint of the dimension with the largest *smear* (bound on ``sum_o |dF_o / ds_j|`` times the
+  width of dimension ``j``) and both halves are analysed; a box too small to split does not reach.
+
+The frontier is processed breadth-first, all jobs and all boxes of a depth level in one jitted,
+batched bounds call. Sizes are padded to powers of two so that few shapes get compiled.
+Afterwards, halves that got the same verdict are merged back into their parent, and adjacent
+boxes of the same verdict are merged (:func:`gara_jax.boxes.merge_adjacent`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gara_jax import boxes
+from gara_jax.networks import mlp_layers
+from gara_jax.reach._layers import TunedJit, check_layers
+from gara_jax.reach.crown import crown_preactivations
+from gara_jax.reach.ibp import ibp_preactivations
+
+METHODS = ("ibp", "crown")
+MIN_BUCKET = 8  # smallest padded frontier per job: fewer shapes to compile
+
+
+class RefineResult(NamedTuple):
+    """The outcome of one refinement of ``G_s`` towards ``G_d``.
+
+    ``reaching_lo/hi [R, D]`` and ``nonreaching_lo/hi [U, D]`` (NumPy) tile ``G_s`` exactly;
+    each list is merged and sorted lexicographically by ``(lo, hi)``. ``n_analysed`` counts the
+    boxes whose bounds were computed, ``depth`` is the deepest bisection level analysed (0: only
+    ``G_s`` itself).
+    """
+
+    reaching_lo: np.ndarray
+    reaching_hi: np.ndarray
+    nonreaching_lo: np.ndarray
+    nonreaching_hi: np.ndarray
+    n_analysed: int
+    depth: int
+
+
+def _gradient_smear(layers, pre, lo, hi, dim):
+    """Smear of each of the first ``dim`` inputs: ``sum_o max |dF_o/dx_j|`` times width.
+
+    The Jacobian is bounded by interval arithmetic through the ReLU derivative pattern: a neuron
+    with pre-activation bounds ``[l, u]`` has derivative 1 if ``l > 0``, 0 if ``u <= 0``, and
+    anything in ``[0, 1]`` otherwise.
+    """
+    g_lo = g_hi = jnp.broadcast_to(layers[0][0][:dim], (lo.shape[0],) + layers[0][0][:dim].shape)
+    for k in range(1, len(layers)):
+        pre_lo, pre_hi = pre[k - 1]
+        on = (pre_lo > 0)[:, None, :]
+        off = (pre_hi <= 0)[:, None, :]
+        g_lo = jnp.where(on, g_lo, jnp.where(off, 0, jnp.minimum(g_lo, 0)))
+        g_hi = jnp.where(on, g_hi, jnp.where(off, 0, jnp.maximum(g_hi, 0)))
+        w = layers[k][0]
+        centre = (g_lo + g_hi) * 0.5 @ w
+        radius = (g_hi - g_lo) * 0.5 @ jnp.abs(w)
+        g_lo, g_hi = centre - radius, centre + radius
+    grad = jnp.maximum(jnp.abs(g_lo), jnp.abs(g_hi)).sum(-1)  # [B, dim]
+    return grad * (hi - lo)[:, :dim]
+
+
+def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, method):
+    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job."""
+    n = s_lo.shape[0]
+    dim = s_lo.shape[1]
+    goal_lo = jnp.broadcast_to(t_lo, (n, dim))
+    goal_hi = jnp.broadcast_to(t_hi, (n, dim))
+    lo = jnp.concatenate([s_lo, goal_lo, goal_hi], axis=1)
+    hi = jnp.concatenate([s_hi, goal_lo, goal_hi], axis=1)
+    pre = ibp_preactivations(layers, lo, hi)
+    if method == "crown":
+        # Both are sound, so their intersection is too, and never looser than either.
+        pre = [boxes.intersect(l1, u1, l2, u2)
+               for (l1, u1), (l2, u2) in zip(pre, crown_preactivations(layers, lo, hi),
+                                             strict=True)]
+    r_lo, r_hi = pre[-1]
+    c1, c2 = boxes.coverage(r_lo, r_hi, t_lo, t_hi)
+    smear = _gradient_smear(layers, pre, lo, hi, dim)
+    return c1, c2, smear
+
+
+def _analyse(layers, s_lo, s_hi, t_lo, t_hi, method):
+    return jax.vmap(lambda *a: _analyse_job(*a, method))(layers, s_lo, s_hi, t_lo, t_hi)
+
+
+_analyse_jit = TunedJit(_analyse, static_argnames=("method",))
+
+
+def _next_pow2(n: int, floor: int = 1) -> int:
+    return max(floor, 1 << max(0, int(n - 1).bit_length()))
+
+
+def _stacked_layers(stacked, n_jobs_name="stacked_layers"):
+    if isinstance(stacked, Mapping):
+        stacked = mlp_layers(stacked)
+    try:
+        layers = tuple((jnp.asarray(w), jnp.asarray(b)) for w, b in stacked)
+    except (TypeError, ValueError) as err:
+        raise ValueError(f"{n_jobs_name}: expected (kernel, bias) pairs ({err})") from None
+    if not layers:
+        raise ValueError(f"{n_jobs_name}: empty layer sequence")
+    check_layers(layers, n_jobs_name, batch_ndim=1)
+    return layers
+
+
+def _sorted_boxes(lo, hi, dim, dtype):
+    if not lo:
+        empty = np.zeros((0, dim), dtype)
+        return empty, empty.copy()
+    lo, hi = boxes.merge_adjacent(np.stack(lo), np.stack(hi))
+    order = np.lexsort(np.concatenate([lo, hi], axis=1).T[::-1])
+    return lo[order], hi[order]
+
+
+def _collect(tree, dim, dtype, n_analysed, depth) -> RefineResult:
+    """Merge same-verdict siblings bottom-up, then adjacent boxes; build the result."""
+    for node in reversed(tree):
+        kids = node["children"]
+        if kids is not None:
+            a, b = tree[kids[0]], tree[kids[1]]
+            if a["children"] is None and b["children"] is None and a["verdict"] == b["verdict"]:
+                node["children"], node["verdict"] = None, a["verdict"]
+    leaves = {True: ([], []), False: ([], [])}
+    stack = [0]
+    while stack:
+        node = tree[stack.pop()]
+        if node["children"] is None:
+            leaves[node["verdict"]][0].append(node["lo"])
+            leaves[node["verdict"]][1].append(node["hi"])
+        else:
+            stack.extend(reversed(node["children"]))
+    r_lo, r_hi = _sorted_boxes(*leaves[True], dim, dtype)
+    u_lo, u_hi = _sorted_boxes(*leaves[False], dim, dtype)
+    return RefineResult(r_lo, r_hi, u_lo, u_hi, n_analysed, depth)
+
+
+def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
+                tau2: float = 0.1, min_volume_ratio: float = 0.05,
+                method: str = "crown") -> list[RefineResult]:
+    """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
+
+    Args:
+        stacked_layers: the ``J`` forward models as ``(kernel [J, in, out], bias [J, out])``
+            pairs (or :class:`~gara_jax.networks.MLP` parameters with a leading ``J`` axis).
+            Input size ``3 D`` (``s ‖ goal.lo ‖ goal.hi``), output size ``D``.
+        start_lo, start_hi: the boxes ``G_s`` to split, ``[J, D]``.
+        target_lo, target_hi: the target boxes ``G_d``, ``[J, D]``.
+        tau1: ``c1`` at or above which a box reaches.
+        tau2: ``c2`` at or below which a box does not reach.
+        min_volume_ratio: boxes at or below this fraction of ``G_s``'s volume are not split.
+        method: ``"ibp"`` or ``"crown"`` (CROWN intersected with IBP).
+
+    Returns:
+        One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
+        unless it is float32); midpoints are computed in that dtype, so the pieces tile ``G_s``
+        exactly.
+
+    Example:
+        >>> import jax, jax.numpy as jnp, numpy as np
+        >>> from gara_jax.networks import MLP
+        >>> keys = jax.random.split(jax.random.key(0), 2)
+        >>> params = jax.vmap(lambda k: MLP((8, 8), 4).init(k, jnp.zeros(12)))(keys)
+        >>> lo, hi = np.zeros((2, 4)), np.ones((2, 4))
+        >>> res = refine_many(params, lo, hi, lo + 0.5, hi + 0.5)
+        >>> len(res), res[0].reaching_lo.shape[1]
+        (2, 4)
+    """
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+    if not 0.0 <= tau2 <= 1.0 or not 0.0 < tau1 <= 1.0:
+        raise ValueError(f"tau1, tau2: need 0 < tau1 <= 1 and 0 <= tau2 <= 1, got {tau1}, {tau2}")
+    if not 0.0 < min_volume_ratio <= 1.0:
+        raise ValueError(f"min_volume_ratio: must be in (0, 1], got {min_volume_ratio}")
+    layers = _stacked_layers(stacked_layers)
+    s_lo, s_hi = boxes.validate_boxes(start_lo, start_hi, "start_lo/start_hi")
+    t_lo, t_hi = boxes.validate_boxes(target_lo, target_hi, "target_lo/target_hi")
+    if s_lo.ndim != 2 or t_lo.shape != s_lo.shape:
+        raise ValueError(
+            f"start_lo/target_lo: expected matching shapes [J, D], got {s_lo.shape}, {t_lo.shape}")
+    n_jobs, dim = s_lo.shape
+    if n_jobs == 0:
+        return []
+    j_layers = layers[0][0].shape[0]
+    if j_layers != n_jobs:
+        raise ValueError(f"stacked_layers: {j_layers} networks for {n_jobs} jobs")
+    if layers[0][0].shape[1] != 3 * dim or layers[-1][0].shape[2] != dim:
+        raise ValueError(
+            f"stacked_layers: expected input size {3 * dim} (s, goal lo, goal hi) and output "
+            f"size {dim}, got {layers[0][0].shape[1]} and {layers[-1][0].shape[2]}")
+    dtype = np.float32 if s_lo.dtype == np.float32 else np.float64
+    s_lo, s_hi = s_lo.astype(dtype), s_hi.astype(dtype)
+
+    # Pad the job axis to a power of two (copies of job 0, ignored) to bound compilations.
+    j_pad = _next_pow2(n_jobs)
+    pad = np.concatenate([np.arange(n_jobs), np.zeros(j_pad - n_jobs, int)])
+    layers_pad = tuple((w[pad], b[pad]) for w, b in layers) if j_pad > n_jobs else layers
+    net_dtype = layers[0][0].dtype
+    t_lo_pad = jnp.asarray(t_lo[pad], net_dtype)
+    t_hi_pad = jnp.asarray(t_hi[pad], net_dtype)
+
+    trees = [[dict(lo=s_lo[j], hi=s_hi[j], depth=0, children=None, verdict=False)]
+             for j in range(n_jobs)]
+    frontier = [[0] for _ in range(n_jobs)]
+    n_analysed = [0] * n_jobs
+    depth = [0] * n_jobs
+    while any(frontier):
+        width = _next_pow2(max(len(f) for f in frontier), MIN_BUCKET)
+        b_lo = np.repeat(s_lo[pad][:, None, :], width, axis=1)
+        b_hi = np.repeat(s_hi[pad][:, None, :], width, axis=1)
+        for j, nodes in enumerate(frontier):
+            for i, n in enumerate(nodes):
+                b_lo[j, i], b_hi[j, i] = trees[j][n]["lo"], trees[j][n]["hi"]
+        c1, c2, smear = jax.device_get(_analyse_jit(
+            layers_pad, jnp.asarray(b_lo, net_dtype), jnp.asarray(b_hi, net_dtype),
+            t_lo_pad, t_hi_pad, method=method))
+        new_frontier = [[] for _ in range(n_jobs)]
+        for j, nodes in enumerate(frontier):
+            tree = trees[j]
+            for i, n in enumerate(nodes):
+                node = tree[n]
+                n_analysed[j] += 1
+                depth[j] = max(depth[j], node["depth"])
+                if c1[j, i] >= tau1:
+                    node["verdict"] = True
+                    continue
+                width_i = node["hi"] - node["lo"]
+                # Halving volume: at depth d the box has 2^-d of G_s's volume (over the
+                # dimensions where G_s has width, the only ones ever split).
+                if c2[j, i] <= tau2 or 0.5 ** node["depth"] <= min_volume_ratio or not (
+                        width_i > 0).any():
+                    node["verdict"] = False
+                    continue
+                # Largest smear; ties: widest, then lowest index. Only dimensions with width.
+                order = np.lexsort((np.arange(dim), -width_i, -smear[j, i]))
+                split = int(next(d for d in order if width_i[d] > 0))
+                mid = node["lo"][split] + (node["hi"][split] - node["lo"][split]) / dtype(2)
+                lo_a, hi_a = node["lo"], node["hi"].copy()
+                lo_b, hi_b = node["lo"].copy(), node["hi"]
+                hi_a[split] = lo_b[split] = mid
+                node["children"] = (len(tree), len(tree) + 1)
+                for lo_c, hi_c in ((lo_a, hi_a), (lo_b, hi_b)):
+                    tree.append(dict(lo=lo_c, hi=hi_c, depth=node["depth"] + 1, children=None,
+                                     verdict=False))
+                new_frontier[j].extend(node["children"])
+        frontier = new_frontier
+    return [_collect(trees[j], dim, dtype, n_analysed[j], depth[j]) for j in range(n_jobs)]
+
+
+def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
+           tau2: float = 0.1, min_volume_ratio: float = 0.05,
+           method: str = "crown") -> RefineResult:
+    """Split the start box ``G_s`` into boxes that reach ``G_d`` and boxes that do not.
+
+    The single-job form of :func:`refine_many`; ``layers_or_params`` is one forward model (a
+    ``(kernel, bias)`` sequence or :class:`~gara_jax.networks.MLP` parameters) and the boxes
+    are ``[D]``.
+
+    Example:
+        >>> import numpy as np
+        >>> d = 4
+        >>> eye = np.eye(d, 3 * d)  # F(s, G) = s + (1, 0, 0, 0), via relu(s) - relu(-s)
+        >>> layers = [(np.concatenate([eye, -eye], 0).T, np.zeros(2 * d)),
+        ...           (np.concatenate([np.eye(d), -np.eye(d)]), np.array([1.0, 0, 0, 0]))]
+        >>> res = refine(layers, [0.0, 0, 0, 0], [4.0, 1, 1, 1], [2.0, 0, 0, 0], [3.5, 1, 1, 1])
+        >>> res.reaching_lo.tolist(), res.reaching_hi.tolist()
+        ([[1.0, 0.0, 0.0, 0.0]], [[2.5, 1.0, 1.0, 1.0]])
+    """
+    if isinstance(layers_or_params, Mapping):
+        layers_or_params = mlp_layers(layers_or_params)
+    if not isinstance(layers_or_params, Sequence) or not layers_or_params:
+        raise ValueError("layers_or_params: expected (kernel, bias) pairs or MLP parameters")
+    stacked = [(jnp.asarray(w)[None], jnp.asarray(b)[None]) for w, b in layers_or_params]
+    s_lo, s_hi = boxes.validate_boxes(start_lo, start_hi, "start_lo/start_hi")
+    t_lo, t_hi = boxes.validate_boxes(target_lo, target_hi, "target_lo/target_hi")
+    if s_lo.ndim != 1 or t_lo.shape != s_lo.shape:
+        raise ValueError(
+            f"start_lo/target_lo: expected matching shapes [D], got {s_lo.shape}, {t_lo.shape}")
+    return refine_many(stacked, s_lo[None], s_hi[None], t_lo[None], t_hi[None], tau1=tau1,
+                       tau2=tau2, min_volume_ratio=min_volume_ratio, method=method)[0]

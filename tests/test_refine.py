@@ -1,0 +1,198 @@
+"""Refinement: exact on closed-form networks, tiles G_s, deterministic, batched = single."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from gara_jax import boxes
+from gara_jax.networks import MLP
+from gara_jax.reach import RefineResult, refine, refine_many
+
+D = 4
+
+
+def translation_net(shift, x_only=False, const=(0.5, 0.5, 0.5), scale=1.0):
+    """A hand-set forward model ``F(s, G)`` (input ``s ‖ G.lo ‖ G.hi``) via relu(v) - relu(-v).
+
+    ``x_only=False``: ``F = scale s + shift``. ``x_only=True``: ``F = (scale x + shift[0],
+    *const)``, which depends on ``x`` alone, so every split is along ``x``.
+    """
+    keep = scale * (np.eye(D, 3 * D)[:1] if x_only else np.eye(D, 3 * D))
+    w1 = np.concatenate([keep, -keep], 0).T  # [12, 2k]: relu(v), relu(-v)
+    k = keep.shape[0]
+    w2 = np.concatenate([np.eye(k, D), -np.eye(k, D)], 0)  # [2k, 4]
+    b2 = np.array(shift, float)
+    if x_only:
+        b2 = b2 + np.array([0.0, *const])
+    return [(w1.astype(np.float32), np.zeros(2 * k, np.float32)),
+            (w2.astype(np.float32), b2.astype(np.float32))]
+
+
+def expected_1d(a, b, dx, t0, t1, tau1=0.7, tau2=0.1, ratio=0.05):
+    """SPEC.md's rule on x-intervals for F = x + dx, with exact arithmetic; merged intervals."""
+    verdicts = []
+
+    def visit(lo, hi, depth):
+        overlap = max(0.0, min(hi + dx, t1) - max(lo + dx, t0))
+        if overlap / (hi - lo) >= tau1:
+            verdicts.append((lo, hi, True))
+        elif overlap / (t1 - t0) <= tau2 or 0.5**depth <= ratio:
+            verdicts.append((lo, hi, False))
+        else:
+            mid = (lo + hi) / 2
+            visit(lo, mid, depth + 1)
+            visit(mid, hi, depth + 1)
+
+    visit(a, b, 0)
+    merged = []
+    for lo, hi, v in verdicts:  # left to right
+        if merged and merged[-1][2] == v and merged[-1][1] == lo:
+            merged[-1] = (merged[-1][0], hi, v)
+        else:
+            merged.append((lo, hi, v))
+    return ([(lo, hi) for lo, hi, v in merged if v], [(lo, hi) for lo, hi, v in merged if not v])
+
+
+def x_intervals(lo, hi):
+    return sorted(zip(lo[:, 0].tolist(), hi[:, 0].tolist(), strict=True))
+
+
+@pytest.mark.parametrize("method", ["crown", "ibp"])
+def test_translation_closed_form(method):
+    # x' = x + 1 lands in [2, 3.5] iff x in [1, 2.5]; SPEC's rule finds exactly that here.
+    start_lo, start_hi = np.array([0.0, 0, 0, 0]), np.array([4.0, 1, 1, 1])
+    res = refine(translation_net([1.0, 0, 0, 0]), start_lo, start_hi,
+                 np.array([2.0, 0, 0, 0]), np.array([3.5, 1, 1, 1]), method=method)
+    assert res.reaching_lo.tolist() == [[1.0, 0, 0, 0]]
+    assert res.reaching_hi.tolist() == [[2.5, 1, 1, 1]]
+    assert x_intervals(res.nonreaching_lo, res.nonreaching_hi) == [(0.0, 1.0), (2.5, 4.0)]
+    boxes.check_tiles(np.concatenate([res.reaching_lo, res.nonreaching_lo]),
+                      np.concatenate([res.reaching_hi, res.nonreaching_hi]), start_lo, start_hi)
+    assert res.n_analysed == 9 and res.depth == 3
+
+
+@pytest.mark.parametrize("dx, t0, t1", [
+    (1.0, 2.0, 3.5), (0.5, 0.0, 1.25), (-1.25, 0.5, 2.0), (2.0, 2.0, 2.75), (0.25, 1.0, 8.0)])
+def test_x_translation_matches_hand_computation(dx, t0, t1):
+    start_lo, start_hi = np.array([0.0, 0, -1, -1]), np.array([4.0, 3, 1, 1])
+    res = refine(translation_net([dx, 0, 0, 0], x_only=True), start_lo, start_hi,
+                 np.array([t0, 0, -1, -1]), np.array([t1, 3, 1, 1]))
+    want_reach, want_miss = expected_1d(0.0, 4.0, dx, t0, t1)
+    assert x_intervals(res.reaching_lo, res.reaching_hi) == want_reach
+    assert x_intervals(res.nonreaching_lo, res.nonreaching_hi) == want_miss
+    # Only x is ever split: the other dimensions are G_s's.
+    for lo, hi in ((res.reaching_lo, res.reaching_hi), (res.nonreaching_lo, res.nonreaching_hi)):
+        assert (lo[:, 1:] == start_lo[1:]).all() and (hi[:, 1:] == start_hi[1:]).all()
+
+
+def test_constant_outside_target_never_reaches():
+    # The x-only model outputs y = 0.5, outside the target's y range [2, 3]: R misses G_d.
+    res = refine(translation_net([1.0, 0, 0, 0], x_only=True), np.zeros(4), np.ones(4),
+                 np.array([0.0, 2, 0, 0]), np.array([5.0, 3, 1, 1]))
+    assert len(res.reaching_lo) == 0
+    assert res.nonreaching_lo.tolist() == [[0.0] * 4] and res.n_analysed == 1
+
+
+def test_all_or_nothing_gives_the_start_box_back():
+    net = translation_net([0.5, 0, 0, 0])
+    start_lo, start_hi = np.array([0.0, 0, 0, 0]), np.array([1.0, 1, 1, 1])
+    res = refine(net, start_lo, start_hi, np.array([0.0, 0, 0, 0]), np.array([2.0, 1, 1, 1]))
+    assert res.reaching_lo.tolist() == [start_lo.tolist()]
+    assert res.reaching_hi.tolist() == [start_hi.tolist()]
+    assert res.nonreaching_lo.shape == (0, 4) and (res.n_analysed, res.depth) == (1, 0)
+    res = refine(net, start_lo, start_hi, np.array([5.0, 0, 0, 0]), np.array([6.0, 1, 1, 1]))
+    assert res.reaching_lo.shape == (0, 4)
+    assert res.nonreaching_lo.tolist() == [start_lo.tolist()]
+    # F = 100 x: the box at x = 0 stays undecided (c1 < 1, c2 > 0) down to the smallest size,
+    # the others miss; all pieces are non-reaching and merge back into G_s.
+    net = translation_net([0.0, 0, 0, 0], x_only=True, scale=100.0)
+    res = refine(net, start_lo, start_hi, np.array([0.0, 0, 0, 0]), np.array([1.0, 1, 1, 1]),
+                 tau1=1.0, tau2=0.0)
+    assert res.nonreaching_lo.tolist() == [start_lo.tolist()]
+    assert res.reaching_lo.shape == (0, 4) and res.depth == 5
+
+
+def test_degenerate_start_box_and_no_jobs():
+    # G_s flat in y: never split along y, and the pieces still tile it.
+    start_lo, start_hi = np.array([0.0, 1.0, 0, 0]), np.array([4.0, 1.0, 1, 1])
+    res = refine(translation_net([1.0, 0, 0, 0]), start_lo, start_hi,
+                 np.array([2.0, 0, 0, 0]), np.array([3.5, 2, 1, 1]))
+    pieces_lo = np.concatenate([res.reaching_lo, res.nonreaching_lo])
+    pieces_hi = np.concatenate([res.reaching_hi, res.nonreaching_hi])
+    assert (pieces_lo[:, 1] == 1.0).all() and (pieces_hi[:, 1] == 1.0).all()
+    boxes.check_tiles(pieces_lo, pieces_hi, start_lo, start_hi)
+    assert res.reaching_lo[:, 0].tolist() == [1.0] and res.reaching_hi[:, 0].tolist() == [2.5]
+    stacked = [(w[None], b[None]) for w, b in translation_net([1.0, 0, 0, 0])]
+    empty = np.zeros((0, 4))
+    assert refine_many([(w[:0], b[:0]) for w, b in stacked], empty, empty, empty, empty) == []
+
+
+def random_case(seed, hidden=(8, 8)):
+    key = jax.random.key(seed)
+    params = MLP(hidden=hidden, out=D).init(key, jnp.zeros(3 * D))
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(-1, 1, (2, D)), rng.uniform(-1, 1, (2, D))
+    s_lo, s_hi = np.minimum(a[0], b[0]), np.maximum(a[0], b[0])
+    t_lo, t_hi = np.minimum(a[1], b[1]), np.maximum(a[1], b[1])
+    return params, s_lo.astype(np.float32), s_hi.astype(np.float32), t_lo, t_hi
+
+
+@settings(max_examples=8, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.sampled_from(["crown", "ibp"]),
+       st.sampled_from([0.05, 0.2]))
+def test_pieces_tile_the_start_box_and_are_deterministic(seed, method, ratio):
+    params, s_lo, s_hi, t_lo, t_hi = random_case(seed)
+    # Widen the target so that the model's outputs straddle it (more splitting).
+    res = refine(params, s_lo, s_hi, t_lo - 0.3, t_hi + 0.3, method=method,
+                 min_volume_ratio=ratio, tau1=0.6, tau2=0.05)
+    assert isinstance(res, RefineResult)
+    all_lo = np.concatenate([res.reaching_lo, res.nonreaching_lo])
+    all_hi = np.concatenate([res.reaching_hi, res.nonreaching_hi])
+    boxes.check_tiles(all_lo, all_hi, s_lo, s_hi)
+    assert all_lo.dtype == np.float32
+    assert res.depth <= 5 and len(all_lo) <= 32 and res.n_analysed <= 63
+    for lo, hi in ((res.reaching_lo, res.reaching_hi), (res.nonreaching_lo, res.nonreaching_hi)):
+        order = np.lexsort(np.concatenate([lo, hi], 1).T[::-1])
+        assert (order == np.arange(len(lo))).all()  # sorted: deterministic first box
+    again = refine(params, s_lo, s_hi, t_lo - 0.3, t_hi + 0.3, method=method,
+                   min_volume_ratio=ratio, tau1=0.6, tau2=0.05)
+    for x, y in zip(res, again, strict=True):
+        np.testing.assert_array_equal(x, y)
+
+
+def test_refine_many_equals_one_job_at_a_time():
+    cases = [random_case(s) for s in (3, 4, 5)]
+    params = jax.tree.map(lambda *p: jnp.stack(p), *[c[0] for c in cases])
+    args = [np.stack([c[i] for c in cases]) for i in range(1, 5)]
+    args[2], args[3] = args[2] - 0.3, args[3] + 0.3
+    many = refine_many(params, *args, tau1=0.6, tau2=0.05)
+    assert len(many) == 3
+    for j, case in enumerate(cases):
+        one = refine(case[0], case[1], case[2], args[2][j], args[3][j], tau1=0.6, tau2=0.05)
+        for x, y in zip(many[j], one, strict=True):
+            np.testing.assert_array_equal(x, y)
+
+
+def test_bad_arguments_raise_value_error_naming_them():
+    net = translation_net([1.0, 0, 0, 0])
+    lo, hi = np.zeros(4), np.ones(4)
+    with pytest.raises(ValueError, match="method"):
+        refine(net, lo, hi, lo, hi, method="zonotope")
+    with pytest.raises(ValueError, match="start_lo/start_hi: lo > hi"):
+        refine(net, hi, lo, lo, hi)
+    with pytest.raises(ValueError, match="target_lo/target_hi: NaN"):
+        refine(net, lo, hi, lo, np.full(4, np.nan))
+    with pytest.raises(ValueError, match="start_lo/target_lo"):
+        refine(net, lo, hi, lo[:3], hi[:3])
+    with pytest.raises(ValueError, match="input size 9"):
+        refine(net, lo[:3], hi[:3], lo[:3], hi[:3])
+    with pytest.raises(ValueError, match="min_volume_ratio"):
+        refine(net, lo, hi, lo, hi, min_volume_ratio=0.0)
+    with pytest.raises(ValueError, match="tau1"):
+        refine(net, lo, hi, lo, hi, tau1=1.5)
+    stacked = [(w[None], b[None]) for w, b in net]
+    with pytest.raises(ValueError, match="2 jobs"):
+        refine_many(stacked, np.zeros((2, 4)), np.ones((2, 4)), np.zeros((2, 4)), np.ones((2, 4)))

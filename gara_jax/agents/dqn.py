@@ -34,6 +34,11 @@ class DQNConfig:
     epsilon_start: float = 1.0
     epsilon_decay: float = 0.99995  # multiplied into epsilon after every step
     epsilon_min: float = 0.01
+    # "taken_action": the usual DQN loss on the taken action's Q-value only. "all_actions": the
+    # reference's Keras fit, MSE over all outputs towards the target network's Q-values at the
+    # state with the taken action's entry replaced by the (clipped) TD target; the other
+    # outputs are anchored to the target network, which steadies the greedy policy.
+    loss: str = "taken_action"
 
     def __post_init__(self):
         if not self.hidden or any(int(h) <= 0 for h in self.hidden):
@@ -48,9 +53,13 @@ class DQNConfig:
                 "learning_starts: must lie in [batch_size, buffer_size], "
                 f"got {self.learning_starts}")
         if not 0.0 <= self.epsilon_min <= self.epsilon_start <= 1.0:
-            raise ValueError("epsilon_start/epsilon_min: need 0 <= epsilon_min <= epsilon_start <= 1")
+            raise ValueError(
+                "epsilon_start/epsilon_min: need 0 <= epsilon_min <= epsilon_start <= 1")
         if not 0.0 < self.epsilon_decay <= 1.0:
             raise ValueError(f"epsilon_decay: must lie in (0, 1], got {self.epsilon_decay}")
+        if self.loss not in ("taken_action", "all_actions"):
+            raise ValueError(
+                f"loss: must be 'taken_action' or 'all_actions', got {self.loss!r}")
 
 
 def _positive(cfg, *names):
@@ -149,6 +158,11 @@ def make_dqn(config: DQNConfig, input_dim: int, num_actions: int) -> DQN:
         next_q = q_values(target_params, batch.next_obs).max(axis=-1)
         target = batch.reward + config.gamma * (1.0 - batch.done.astype(next_q.dtype)) * next_q
         target = jnp.clip(target, -config.td_target_clip, config.td_target_clip)
+        if config.loss == "all_actions":
+            q_all = q_values(params, batch.obs)
+            taken = jax.nn.one_hot(batch.action, q_all.shape[-1], dtype=bool)
+            full = jnp.where(taken, target[:, None], q_values(target_params, batch.obs))
+            return jnp.mean((q_all - jax.lax.stop_gradient(full)) ** 2)
         q = jnp.take_along_axis(q_values(params, batch.obs), batch.action[:, None], axis=-1)[:, 0]
         return jnp.mean((q - jax.lax.stop_gradient(target)) ** 2)
 
@@ -168,6 +182,7 @@ def make_dqn(config: DQNConfig, input_dim: int, num_actions: int) -> DQN:
         copy = state.steps % config.target_update_every == 0
         target = jax.tree.map(lambda p, t: jnp.where(copy, p, t), state.params, state.target_params)
         epsilon = jnp.maximum(config.epsilon_min, state.epsilon * config.epsilon_decay)
-        return state.replace(target_params=target, epsilon=epsilon), {"loss": loss, "updated": ready}
+        info = {"loss": loss, "updated": ready}
+        return state.replace(target_params=target, epsilon=epsilon), info
 
     return DQN(init=init, q_values=q_values, act=act, observe=observe, update=update)

@@ -1,0 +1,327 @@
+"""GARA's forward model ``F_k(s, G) -> s_{t+k}`` and the high-level memory it learns from.
+
+**High-level memory.** A fixed-capacity ring buffer (a pytree, so it vmaps over seeds) of
+options: the state where each option started, the state where it ended, the *bounds* of the
+goal box it targeted, the environment reward it collected, its length and the environment step
+at which it ended. It stores states and boxes, never goal indices: a split changes what an index
+means, so goals are derived from the stored states (``locate``) and the stored target bounds
+whenever they are needed (DESIGN.md), and nothing has to be rewritten after a refinement.
+
+**Forward model.** ``MLP(hidden=(8, 8), out=D)`` on ``s ‖ G.lo ‖ G.hi``, Adam (lr 0.005), mean
+squared error, minibatches of 32 (SPEC.md section 3; the reference fitted a Keras model with its
+default batch size). :func:`make_forward_model` returns a ``fit`` that trains J models at once
+(``vmap`` over jobs, each on its own zero-padded, masked dataset) until each one's loss has
+stabilised: after every epoch (one shuffled pass over the job's data) the full-data MSE is
+measured, and a job stops once it fell by less than ``stable_decrease`` (0.01, the SPEC's
+"decrease below 0.01") over the last epoch, after at least ``min_epochs``. A job that has not
+stabilised after ``max_epochs`` is reported as not stable, and GARA skips its analysis this
+time. The whole loop is one jitted ``lax.while_loop``; jobs that stopped are frozen.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from flax import struct
+
+from gara_jax.networks import MLP
+
+
+@dataclasses.dataclass(frozen=True)
+class ForwardModelConfig:
+    """Forward-model hyper-parameters (SPEC.md section 3 defaults).
+
+    Attributes:
+        hidden: hidden layer widths of the ReLU MLP.
+        learning_rate: Adam step size.
+        batch_size: minibatch size of one gradient step.
+        stable_decrease: a model has stabilised when its full-data MSE fell by less than this
+            over one epoch.
+        min_epochs: epochs before the stability test applies.
+        max_epochs: epochs after which an unstable model is given up on (for this round).
+    """
+
+    hidden: tuple[int, ...] = (8, 8)
+    learning_rate: float = 0.005
+    batch_size: int = 32
+    stable_decrease: float = 0.01
+    min_epochs: int = 2
+    max_epochs: int = 100
+
+    def __post_init__(self):
+        if not self.hidden or any(int(h) <= 0 for h in self.hidden):
+            raise ValueError(f"hidden: widths must be positive, got {self.hidden}")
+        object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
+        if not self.learning_rate > 0:
+            raise ValueError(f"learning_rate: must be positive, got {self.learning_rate}")
+        if int(self.batch_size) != self.batch_size or self.batch_size < 1:
+            raise ValueError(f"batch_size: must be an integer >= 1, got {self.batch_size}")
+        if not self.stable_decrease >= 0:
+            raise ValueError(f"stable_decrease: must be >= 0, got {self.stable_decrease}")
+        if int(self.min_epochs) != self.min_epochs or self.min_epochs < 1:
+            raise ValueError(f"min_epochs: must be an integer >= 1, got {self.min_epochs}")
+        if int(self.max_epochs) != self.max_epochs or self.max_epochs < self.min_epochs:
+            raise ValueError(
+                f"max_epochs: must be an integer >= min_epochs, got {self.max_epochs}")
+
+
+# ----------------------------------------------------------------------------------------------
+# High-level memory
+# ----------------------------------------------------------------------------------------------
+
+
+@struct.dataclass
+class HighMemory:
+    """Ring buffer of options, capacity ``C``; rows ``[0, size)`` hold data.
+
+    Every array has ``C + 1`` rows: the last one is scratch, written when nothing is to be
+    stored, so a push never has to read the row it replaces (a conditional write inside a
+    vmapped scan is otherwise a read-modify-write of the whole row on every step).
+
+    Attributes:
+        start, end: ``[C + 1, D]`` states where the option started and ended.
+        target_lo, target_hi: ``[C + 1, D]`` bounds of the goal box it targeted.
+        reward: ``[C + 1]`` environment reward collected during the option.
+        length: ``[C + 1]`` environment steps the option lasted (``k``, less if the episode
+            ended).
+        step: ``[C + 1]`` the agent's environment-step counter when the option ended.
+        ptr: next row to write; size: rows holding data.
+    """
+
+    start: jax.Array
+    end: jax.Array
+    target_lo: jax.Array
+    target_hi: jax.Array
+    reward: jax.Array
+    length: jax.Array
+    step: jax.Array
+    ptr: jax.Array
+    size: jax.Array
+
+    @property
+    def capacity(self) -> int:
+        return self.reward.shape[-1] - 1
+
+
+def init_memory(capacity: int, state_dim: int) -> HighMemory:
+    """An empty memory.
+
+    Example:
+        >>> init_memory(10_000, 4).capacity
+        10000
+    """
+    rows = lambda *shape: jnp.zeros((capacity + 1, *shape), jnp.float32)
+    return HighMemory(start=rows(state_dim), end=rows(state_dim), target_lo=rows(state_dim),
+                      target_hi=rows(state_dim), reward=rows(),
+                      length=jnp.zeros((capacity + 1,), jnp.int32),
+                      step=jnp.zeros((capacity + 1,), jnp.int32),
+                      ptr=jnp.int32(0), size=jnp.int32(0))
+
+
+def push_memory(memory: HighMemory, start, end, target_lo, target_hi, reward, length, step,
+                where=True) -> HighMemory:
+    """Store one option, only ``where`` it is true (else the scratch row is written, so it
+    costs the same either way inside a vmapped scan); the oldest row is overwritten once full.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> m = init_memory(2, 1)
+        >>> for i in range(3):
+        ...     m = push_memory(m, jnp.full(1, i), jnp.zeros(1), jnp.zeros(1), jnp.ones(1),
+        ...                     0.0, 5, i)
+        >>> m.start[:2, 0].tolist(), int(m.size), int(m.ptr)
+        ([2.0, 1.0], 2, 1)
+    """
+    capacity = memory.capacity
+    i = jnp.where(where, memory.ptr, capacity)
+    put = lambda rows, value: rows.at[i].set(jnp.asarray(value, rows.dtype))
+    return memory.replace(
+        start=put(memory.start, start),
+        end=put(memory.end, end),
+        target_lo=put(memory.target_lo, target_lo),
+        target_hi=put(memory.target_hi, target_hi),
+        reward=put(memory.reward, reward),
+        length=put(memory.length, length),
+        step=put(memory.step, step),
+        ptr=jnp.where(where, (memory.ptr + 1) % capacity, memory.ptr).astype(jnp.int32),
+        size=jnp.where(where, jnp.minimum(memory.size + 1, capacity), memory.size).astype(
+            jnp.int32),
+    )
+
+
+def match_boxes(lo, hi, boxes_lo, boxes_hi, n_boxes) -> jax.Array:
+    """Index of the (first) valid box with exactly the bounds ``lo, hi``, else -1.
+
+    Used to find which current goal a stored target box is; a box that has since been split
+    matches none. ``lo, hi`` may have leading batch axes.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> blo, bhi = jnp.array([[0.0], [1.0]]), jnp.array([[1.0], [2.0]])
+        >>> match_boxes(jnp.array([[1.0], [0.0]]), jnp.array([[2.0], [2.0]]), blo, bhi, 2).tolist()
+        [1, -1]
+    """
+    same = jnp.all((lo[..., None, :] == boxes_lo) & (hi[..., None, :] == boxes_hi), axis=-1)
+    same = same & (jnp.arange(boxes_lo.shape[0]) < n_boxes)
+    return jnp.where(jnp.any(same, axis=-1), jnp.argmax(same, axis=-1), -1).astype(jnp.int32)
+
+
+def pair_experience(start_goal, target_goal, memory: HighMemory, since_step, max_goals: int):
+    """Per goal pair: env steps of experience held in memory, and whether it was explored lately.
+
+    Args:
+        start_goal, target_goal: ``[C + 1]`` goal indices of each stored option (from ``locate`` on
+            ``memory.start`` and :func:`match_boxes` on the target bounds; -1 for none).
+        since_step: options that ended after this env step count as recently explored.
+
+    Returns:
+        ``(steps [G, G] int32, recent [G, G] bool)``.
+    """
+    rows = jnp.arange(memory.capacity + 1) < memory.size
+    ok = rows & (start_goal >= 0) & (target_goal >= 0)
+    flat = jnp.where(ok, start_goal * max_goals + target_goal, 0)
+    steps = jnp.zeros(max_goals * max_goals, jnp.int32).at[flat].add(
+        jnp.where(ok, memory.length, 0))
+    recent = jnp.zeros(max_goals * max_goals, bool).at[flat].max(ok & (memory.step > since_step))
+    return steps.reshape(max_goals, max_goals), recent.reshape(max_goals, max_goals)
+
+
+# ----------------------------------------------------------------------------------------------
+# Forward model
+# ----------------------------------------------------------------------------------------------
+
+
+class FitResult(NamedTuple):
+    """Output of :attr:`ForwardModel.fit` (leading job axis J on every field)."""
+
+    params: dict  # trained parameters
+    loss: jax.Array  # final full-data MSE
+    epochs: jax.Array  # epochs trained
+    stable: jax.Array  # the loss stabilised before max_epochs
+
+
+class ForwardModel(NamedTuple):
+    """The forward model as pure functions. Build with :func:`make_forward_model`.
+
+    - ``init(keys [J]) -> params`` (stacked over jobs),
+    - ``apply(params, inputs) -> predicted s_{t+k}`` (one job's parameters),
+    - ``fit(params, inputs [J, N, 3D], targets [J, N, D], mask [J, N], keys [J]) -> FitResult``,
+      jitted; ``N`` must be a multiple of the batch size (pad with :func:`pad_jobs`).
+    """
+
+    init: callable
+    apply: callable
+    fit: callable
+
+
+def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardModel:
+    """Build the forward model for ``state_dim``-dimensional states (inputs ``3 * state_dim``).
+
+    Example:
+        >>> import jax, jax.numpy as jnp
+        >>> fm = make_forward_model(ForwardModelConfig(max_epochs=3), state_dim=4)
+        >>> params = fm.init(jax.random.split(jax.random.key(0), 2))
+        >>> x = jnp.ones((2, 32, 12)); y = jnp.zeros((2, 32, 4)); m = jnp.ones((2, 32), bool)
+        >>> out = fm.fit(params, x, y, m, jax.random.split(jax.random.key(1), 2))
+        >>> out.loss.shape, out.epochs.shape
+        ((2,), (2,))
+    """
+    if state_dim <= 0:
+        raise ValueError(f"state_dim: must be positive, got {state_dim}")
+    net = MLP(hidden=config.hidden, out=state_dim)
+    optimizer = optax.adam(config.learning_rate)
+    batch = config.batch_size
+
+    def init(keys):
+        return jax.vmap(lambda k: net.init(k, jnp.zeros((3 * state_dim,))))(keys)
+
+    def apply(params, inputs):
+        return net.apply(params, inputs)
+
+    def masked_mse(params, x, y, m):
+        se = jnp.mean((apply(params, x) - y) ** 2, axis=-1)
+        return jnp.sum(jnp.where(m, se, 0.0)) / jnp.maximum(jnp.sum(m), 1)
+
+    def fit_one(params, x, y, m, key):
+        n = x.shape[0]
+        n_batches = n // batch
+
+        def epoch(params, opt_state, key):
+            # Valid rows first, in a random order; batches past the data are no-ops.
+            order = jnp.argsort(jnp.where(m, jax.random.uniform(key, (n,)), 2.0))
+
+            def step(carry, b):
+                params, opt_state = carry
+                idx = jax.lax.dynamic_slice(order, (b * batch,), (batch,))
+                bm = m[idx]
+                grads = jax.grad(masked_mse)(params, x[idx], y[idx], bm)
+                updates, new_opt = optimizer.update(grads, opt_state, params)
+                new_params = optax.apply_updates(params, updates)
+                live = jnp.any(bm)
+                keep = lambda new, old: jax.tree.map(lambda a, b: jnp.where(live, a, b), new, old)
+                return (keep(new_params, params), keep(new_opt, opt_state)), None
+
+            (params, opt_state), _ = jax.lax.scan(step, (params, opt_state),
+                                                  jnp.arange(n_batches))
+            return params, opt_state
+
+        def cond(c):
+            return ~c["done"]
+
+        def body(c):
+            key, k_epoch = jax.random.split(c["key"])
+            params, opt_state = epoch(c["params"], c["opt"], k_epoch)
+            loss = masked_mse(params, x, y, m)
+            n_epochs = c["epochs"] + 1
+            stable = (n_epochs >= config.min_epochs) & (c["loss"] - loss < config.stable_decrease)
+            done = stable | (n_epochs >= config.max_epochs)
+            return dict(params=params, opt=opt_state, loss=loss, epochs=n_epochs, key=key,
+                        stable=stable, done=done)
+
+        init_c = dict(params=params, opt=optimizer.init(params), loss=masked_mse(params, x, y, m),
+                      epochs=jnp.int32(0), key=key, stable=jnp.asarray(False),
+                      done=~jnp.any(m))
+        # vmap turns this into one loop that runs until every job is done, applying the body
+        # only to the jobs still running.
+        out = jax.lax.while_loop(cond, body, init_c)
+        return FitResult(out["params"], out["loss"], out["epochs"], out["stable"])
+
+    fit = jax.jit(jax.vmap(fit_one))
+    return ForwardModel(init=init, apply=apply, fit=fit)
+
+
+def pad_jobs(datasets, batch_size: int, min_rows: int = 256, max_rows: int | None = None):
+    """Stack per-job ``(inputs [n_j, 3D], targets [n_j, D])`` numpy datasets into padded arrays.
+
+    Rows are padded to ``min_rows * 4**i`` (capped at ``max_rows``, e.g. the memory capacity)
+    and rounded up to a multiple of ``batch_size``, so that only a handful of shapes is ever
+    compiled. Returns ``(inputs [J, N, 3D], targets [J, N, D], mask [J, N])`` (numpy).
+
+    Example:
+        >>> import numpy as np
+        >>> x, y, m = pad_jobs([(np.ones((300, 12)), np.ones((300, 4)))], batch_size=32)
+        >>> x.shape, int(m.sum())
+        ((1, 1024, 12), 300)
+    """
+    longest = max(len(x) for x, _ in datasets)
+    rows = min_rows
+    while rows < longest and (max_rows is None or rows < max_rows):
+        rows *= 4
+    if max_rows is not None:
+        rows = min(rows, max(max_rows, longest))
+    rows = int(np.ceil(rows / batch_size) * batch_size)
+    in_dim = datasets[0][0].shape[1]
+    out_dim = datasets[0][1].shape[1]
+    inputs = np.zeros((len(datasets), rows, in_dim), np.float32)
+    targets = np.zeros((len(datasets), rows, out_dim), np.float32)
+    mask = np.zeros((len(datasets), rows), bool)
+    for j, (x, y) in enumerate(datasets):
+        inputs[j, : len(x)] = x
+        targets[j, : len(y)] = y
+        mask[j, : len(x)] = True
+    return inputs, targets, mask

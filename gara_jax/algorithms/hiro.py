@@ -1,0 +1,467 @@
+"""HIRO (Nachum et al., 2018): raw states as goals, a TD3 high level with off-policy relabelling.
+
+Read top to bottom: config, the goal helpers (transition, intrinsic reward, relabelling), then
+``make_hiro`` with ``init`` / ``train_epoch`` / ``evaluate`` (the contract of ``base.py``).
+
+Every ``k`` steps the high level (TD3 over ``s``) proposes a *relative* goal ``g``: the desired
+change of state. The low level (the project's goal-conditioned DQN over ``s ‖ g``) is rewarded
+``-||s + g - s'||`` and its goal moves with it, ``g' = s + g - s'``, so the absolute target
+``s + g`` stays fixed during an option. An option ends after ``k`` steps or when the episode
+ends; its high-level transition ``(s_t, g_t, R, s_{t+k}, done)`` is stored together with the
+logged low-level states and actions. When the high level learns, each sampled goal is replaced by
+the candidate under which the *current* low level most likely produced the logged actions
+(candidates: the original goal, ``s_{t+k} - s_t``, and samples around the latter).
+
+One epoch is one ``lax.scan`` over blocks of ``k`` environment steps (an inner scan); the high
+level takes one TD3 step per block, i.e. per ``k`` environment steps, as HIRO trains its higher
+level once per ``c`` steps. Doing it once per block rather than "when an option ends" keeps it
+out of the per-step loop, where ``vmap`` would turn a ``cond`` into computing it every step.
+
+Example:
+    >>> import jax
+    >>> from gara_jax.agents.dqn import DQNConfig
+    >>> from gara_jax.agents.td3 import TD3Config
+    >>> cfg = HiroConfig(steps_per_epoch=50, eval_episodes=2,
+    ...                  low=DQNConfig(batch_size=8, learning_starts=16, buffer_size=64),
+    ...                  high=TD3Config(actor_hidden=(16,), critic_hidden=(16,), batch_size=4,
+    ...                                 learning_starts=4, buffer_size=64))
+    >>> algo = make_hiro(cfg)
+    >>> state = algo.init(jax.random.key(0))
+    >>> state, metrics = jax.jit(algo.train_epoch)(state, jax.random.key(1))
+    >>> int(metrics["env_steps"]), int(metrics["n_goals"])
+    (50, 0)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+import envs
+from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
+from gara_jax.agents.td3 import (
+    Batch,
+    Replay,
+    TD3Config,
+    TD3State,
+    make_td3,
+    replay_add,
+    replay_init,
+    replay_sample,
+)
+from gara_jax.algorithms.base import Algorithm
+
+# ------------------------------------------------------------------------------------------------
+# Config
+# ------------------------------------------------------------------------------------------------
+
+# HIRO's low level has no TD-target clipping. The reference DQN clips to [-1, 1], which suits
+# GARA's +1 / -0.1 rewards but would flatten every -||s + g - s'|| return (a distance of 0.05
+# kept for 20 steps already sums to -1) to -1, so HIRO uses a bound that never binds.
+HIRO_LOW = DQNConfig(td_target_clip=1e6)
+
+
+@dataclasses.dataclass(frozen=True)
+class HiroConfig:
+    """HIRO on a maze. The TD3 settings (``high``) and the relabelling are the HIRO paper's.
+
+    Goals are relative, in the box ``[-goal_high, goal_high]`` with ``goal_high =
+    (P, P, V, V)``: ``P`` (``goal_position_range``, default the maze size ``n``) bounds position
+    changes, since no move inside ``[0, n]`` is longer; ``V = goal_velocity_range`` = 2 bounds
+    velocity changes, since velocities lie in ``[-1, 1]``.
+
+    Example:
+        >>> HiroConfig().k, HiroConfig().high.batch_size
+        (5, 100)
+        >>> HiroConfig(relabel_candidates=1)
+        Traceback (most recent call last):
+        ...
+        ValueError: relabel_candidates: must be >= 2 (the original goal and s_{t+k} - s_t), got 1
+    """
+
+    env: str = "u_maze"
+    k: int = 5  # environment steps per high-level decision (HIRO's c)
+    steps_per_epoch: int = 3000  # a multiple of k
+    eval_episodes: int = 10
+    low: DQNConfig = HIRO_LOW
+    high: TD3Config = TD3Config()
+    goal_position_range: float | None = None  # None: the maze size n
+    goal_velocity_range: float = 2.0
+    goal_noise: float = 1.0  # std of the Gaussian exploration noise on proposed goals (absolute)
+    high_reward_scale: float = 0.1  # HIRO scales the higher level's reward by 0.1
+    low_reward_scale: float = 1.0  # ... and the lower level's by 1
+    relabel: bool = True  # off-policy goal correction on/off
+    relabel_candidates: int = 10  # original goal, s_{t+k} - s_t and 8 samples around the latter
+    relabel_sigma: float = 0.5  # std of those samples, as a fraction of the goal half-range
+    relabel_temperature: float = 1.0  # Boltzmann temperature of the low level's Q-values
+
+    def __post_init__(self):
+        if self.env not in envs.LAYOUTS:
+            raise ValueError(f"env: unknown layout {self.env!r}; valid: {list(envs.LAYOUTS)}")
+        for name in ("k", "steps_per_epoch", "eval_episodes"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value <= 0:
+                raise ValueError(f"{name}: must be a positive integer, got {value!r}")
+        if self.steps_per_epoch % self.k:
+            raise ValueError(
+                f"steps_per_epoch: must be a multiple of k={self.k}, got {self.steps_per_epoch}")
+        if not isinstance(self.low, DQNConfig):
+            raise ValueError(f"low: must be a DQNConfig, got {type(self.low).__name__}")
+        if not isinstance(self.high, TD3Config):
+            raise ValueError(f"high: must be a TD3Config, got {type(self.high).__name__}")
+        if self.goal_position_range is not None and not self.goal_position_range > 0:
+            raise ValueError(
+                f"goal_position_range: must be positive or None, got {self.goal_position_range}")
+        for name in ("goal_velocity_range", "relabel_temperature"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name}: must be positive, got {getattr(self, name)}")
+        for name in ("goal_noise", "relabel_sigma"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        for name in ("high_reward_scale", "low_reward_scale"):
+            if not math.isfinite(getattr(self, name)):
+                raise ValueError(f"{name}: must be finite, got {getattr(self, name)}")
+        if not isinstance(self.relabel_candidates, int) or self.relabel_candidates < 2:
+            raise ValueError(
+                "relabel_candidates: must be >= 2 (the original goal and s_{t+k} - s_t), "
+                f"got {self.relabel_candidates}")
+
+
+# ------------------------------------------------------------------------------------------------
+# Goals: transition, intrinsic reward, off-policy relabelling
+# ------------------------------------------------------------------------------------------------
+
+
+def goal_transition(obs, goal, next_obs):
+    """HIRO's ``h(s, g, s') = s + g - s'``: the relative goal that keeps ``s + g`` fixed.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> goal_transition(jnp.array([0.0, 1.0]), jnp.array([2.0, 0.0]),
+        ...                 jnp.array([0.5, 1.0])).tolist()
+        [1.5, 0.0]
+    """
+    return obs + goal - next_obs
+
+
+def intrinsic_reward(obs, goal, next_obs, scale=1.0):
+    """The low level's reward ``-scale * ||s + g - s'||`` (distance left to the target).
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> float(intrinsic_reward(jnp.zeros(2), jnp.array([3.0, 4.0]), jnp.zeros(2)))
+        -5.0
+    """
+    return -scale * jnp.linalg.norm(goal_transition(obs, goal, next_obs), axis=-1)
+
+
+def candidate_log_likelihood(q_fn, states, actions, length, candidates, temperature=1.0):
+    """Log-likelihood of the logged low-level actions under each candidate goal.
+
+    For candidate ``g`` the goal at logged step ``i`` is what the goal transition gives,
+    ``g_i = s_0 + g - s_i`` (``h`` applied ``i`` times telescopes to this), and the action
+    probability is the Boltzmann policy ``softmax(Q(s_i ‖ g_i) / temperature)``. Leading batch
+    axis ``...`` is optional; ``q_fn`` gets one flat ``[N, 2d]`` array, which is much faster on
+    CPU than many small batched calls.
+
+    Args:
+        q_fn: ``inputs [N, 2d] -> Q-values [N, A]`` (the low level's network).
+        states: ``[..., k, d]`` logged states ``s_0 .. s_{k-1}`` of the option.
+        actions: ``[..., k]`` logged actions.
+        length: ``[...]`` number of valid steps (an option is cut short when the episode ends).
+        candidates: ``[..., C, d]`` relative goals proposed at ``s_0``.
+        temperature: Boltzmann temperature.
+
+    Returns:
+        ``[..., C]`` summed log-probabilities over the valid steps.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> q_fn = lambda x: jnp.stack([x[..., 2], -x[..., 2]], -1)  # action 0 iff goal_x > 0
+        >>> ll = candidate_log_likelihood(q_fn, jnp.zeros((3, 2)), jnp.zeros(3, int), 3,
+        ...                               jnp.array([[-5.0, 0.0], [5.0, 0.0]]))
+        >>> [round(float(v), 3) for v in ll]
+        [-30.0, -0.0]
+    """
+    s = states[..., None, :, :]  # [..., 1, k, d]
+    goals = s[..., :1, :] + candidates[..., :, None, :] - s  # [..., C, k, d]
+    inputs = jnp.concatenate([jnp.broadcast_to(s, goals.shape), goals], axis=-1)
+    q = q_fn(inputs.reshape(-1, inputs.shape[-1]))
+    q = q.reshape(goals.shape[:-1] + q.shape[-1:]) / temperature  # [..., C, k, A]
+    log_probs = q - jax.nn.logsumexp(q, axis=-1, keepdims=True)
+    taken = jnp.take_along_axis(
+        log_probs, jnp.broadcast_to(actions[..., None, :, None], q.shape[:-1] + (1,)).astype(
+            jnp.int32), axis=-1)[..., 0]
+    valid = jnp.arange(states.shape[-2]) < jnp.asarray(length)[..., None, None]
+    return jnp.sum(jnp.where(valid, taken, 0.0), axis=-1)
+
+
+def relabel_goal(q_fn, states, actions, length, goal, next_obs, key, goal_low, goal_high,
+                 num_candidates=10, sigma=0.5, temperature=1.0):
+    """HIRO's off-policy correction for high-level transitions (optional leading batch axis).
+
+    Candidates: the original ``goal``, ``s_{t+k} - s_t`` and ``num_candidates - 2`` draws from
+    ``N(s_{t+k} - s_t, (sigma * half_range)^2)``, all clipped to the goal box. Returns the
+    candidate maximising :func:`candidate_log_likelihood` (ties go to the original goal) and
+    its index (0 means the original goal was kept).
+
+    Args:
+        q_fn: ``inputs [N, 2d] -> Q-values [N, A]``.
+        states, actions, length: the logged option, ``[..., k, d]``, ``[..., k]``, ``[...]``.
+        goal: ``[..., d]`` the goal that was proposed; ``next_obs``: ``[..., d]`` ``s_{t+k}``.
+        key: PRNG key for the samples.
+        goal_low, goal_high: the goal box (scalars or ``[d]``).
+
+    Example:
+        >>> import jax, jax.numpy as jnp
+        >>> q_fn = lambda x: jnp.stack([x[..., 2], -x[..., 2]], -1)  # action 0 iff goal_x > 0
+        >>> states = jnp.zeros((3, 2)).at[:, 0].set(jnp.arange(3.0))  # moved along +x
+        >>> g, i = relabel_goal(q_fn, states, jnp.zeros(3, int), 3, jnp.array([-2.0, 0.0]),
+        ...                     jnp.array([3.0, 0.0]), jax.random.key(0), -4.0, 4.0)
+        >>> int(i) != 0, bool(g[0] > 0)
+        (True, True)
+    """
+    d = goal.shape[-1]
+    goal_low = jnp.broadcast_to(jnp.asarray(goal_low, goal.dtype), (d,))
+    goal_high = jnp.broadcast_to(jnp.asarray(goal_high, goal.dtype), (d,))
+    achieved = next_obs - states[..., 0, :]
+    noise = jax.random.normal(key, goal.shape[:-1] + (num_candidates - 2, d), goal.dtype)
+    samples = achieved[..., None, :] + sigma * (goal_high - goal_low) / 2.0 * noise
+    candidates = jnp.clip(
+        jnp.concatenate([goal[..., None, :], achieved[..., None, :], samples], axis=-2),
+        goal_low, goal_high)  # [..., C, d]
+    log_lik = candidate_log_likelihood(q_fn, states, actions, length, candidates, temperature)
+    best = jnp.argmax(log_lik, axis=-1)
+    return jnp.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :], best
+
+
+# ------------------------------------------------------------------------------------------------
+# State
+# ------------------------------------------------------------------------------------------------
+
+
+class HighTransition(NamedTuple):
+    """One option as the high level stores it (states and actions padded to ``k``)."""
+
+    obs: jnp.ndarray  # s_t
+    goal: jnp.ndarray  # g_t as proposed
+    reward: jnp.ndarray  # scaled sum of environment rewards over the option
+    next_obs: jnp.ndarray  # s_{t+k} (or the state where the episode ended)
+    done: jnp.ndarray  # the episode terminated (truncation still bootstraps)
+    states: jnp.ndarray  # [k, d] logged s_t .. s_{t+k-1}
+    actions: jnp.ndarray  # [k] logged low-level actions
+    length: jnp.ndarray  # valid entries of states/actions
+
+
+@struct.dataclass
+class Option:
+    """The option in progress (``length == 0``: a new goal is due)."""
+
+    start_obs: jnp.ndarray
+    goal: jnp.ndarray
+    reward: jnp.ndarray
+    length: jnp.ndarray
+    states: jnp.ndarray
+    actions: jnp.ndarray
+
+
+@struct.dataclass
+class HiroState:
+    low: DQNState
+    high: TD3State
+    replay: Replay  # high-level transitions
+    env_state: envs.EnvState
+    obs: jnp.ndarray
+    goal: jnp.ndarray  # the low level's current relative goal
+    option: Option
+    episode_return: jnp.ndarray
+    env_steps: jnp.ndarray
+
+
+# ------------------------------------------------------------------------------------------------
+# The algorithm
+# ------------------------------------------------------------------------------------------------
+
+
+def _accumulate(stats: dict, values: dict) -> dict:
+    """Add ``values`` into the running epoch sums ``stats`` (same dtypes kept)."""
+    return stats | {name: stats[name] + jnp.asarray(v).astype(stats[name].dtype)
+                    for name, v in values.items()}
+
+
+def make_hiro(config: HiroConfig) -> Algorithm:
+    """HIRO as an :class:`~gara_jax.algorithms.base.Algorithm` (see the module docstring).
+
+    ``train_epoch`` also reports ``low_loss``, ``critic_loss``, ``relabel_kept`` (fraction of
+    sampled goals the relabelling left unchanged), ``goal_distance`` (mean ``||s + g - s'||``
+    left when an option ends) and ``intrinsic_reward`` (mean per step).
+    """
+    env, env_params = envs.make(config.env)
+    obs_dim, k = 4, config.k
+    max_steps = int(env_params.max_steps)
+    position_range = config.goal_position_range or float(env_params.n)
+    goal_high = jnp.array([position_range] * 2 + [config.goal_velocity_range] * 2, jnp.float32)
+    goal_low = -goal_high
+    dqn = make_dqn(config.low, 2 * obs_dim, env.num_actions)
+    td3 = make_td3(config.high, obs_dim, obs_dim, goal_low, goal_high)
+    n_blocks = config.steps_per_epoch // k
+
+    def init(key) -> HiroState:
+        k_low, k_high, k_env = jax.random.split(key, 3)
+        obs, env_state = env.reset(k_env, env_params)
+        zeros = jnp.zeros(obs_dim, jnp.float32)
+        example = HighTransition(zeros, zeros, jnp.float32(0), zeros, jnp.bool_(False),
+                                 jnp.zeros((k, obs_dim)), jnp.zeros(k, jnp.int32), jnp.int32(0))
+        option = Option(zeros, zeros, jnp.float32(0), jnp.int32(0), jnp.zeros((k, obs_dim)),
+                        jnp.zeros(k, jnp.int32))
+        return HiroState(low=dqn.init(k_low), high=td3.init(k_high),
+                         replay=replay_init(example, config.high.buffer_size),
+                         env_state=env_state, obs=obs, goal=zeros, option=option,
+                         episode_return=jnp.float32(0), env_steps=jnp.int32(0))
+
+    def propose_goal(state: HiroState, key):
+        # Uniform goals while the high level warms up (TD3's start phase), then actor + noise.
+        k_uniform, k_noise = jax.random.split(key)
+        uniform = jax.random.uniform(k_uniform, (obs_dim,), minval=goal_low, maxval=goal_high)
+        explored = td3.act(state.high, state.obs, k_noise, config.goal_noise)
+        warm = state.replay.size < config.high.learning_starts
+        return jnp.where(warm, uniform, explored)
+
+    def env_step(carry, key):
+        state, stats = carry
+        k_goal, k_act, k_env, k_learn = jax.random.split(key, 4)
+        option = state.option
+        new_option = option.length == 0
+        goal = jnp.where(new_option, propose_goal(state, k_goal), state.goal)
+        option = option.replace(start_obs=jnp.where(new_option, state.obs, option.start_obs),
+                                goal=jnp.where(new_option, goal, option.goal))
+
+        low_obs = jnp.concatenate([state.obs, goal])
+        action = dqn.act(state.low, low_obs, k_act)
+        obs, env_state, reward, terminated, truncated, info = env.step_autoreset(
+            k_env, state.env_state, action, env_params)
+        next_obs = info["final_obs"]  # the true s' (obs is already reset where the episode ended)
+        next_goal = goal_transition(state.obs, goal, next_obs)
+        r_low = intrinsic_reward(state.obs, goal, next_obs, config.low_reward_scale)
+        low, low_info = dqn.observe(
+            state.low,
+            Transition(low_obs, action, r_low, jnp.concatenate([next_obs, next_goal]), terminated),
+            k_learn)
+
+        # Log the step into the option; store the option when it ends.
+        i = option.length
+        states = option.states.at[i].set(state.obs)
+        actions = option.actions.at[i].set(action)
+        option_reward = option.reward + reward
+        ended = terminated | truncated
+        option_done = (i + 1 == k) | ended
+        transition = HighTransition(option.start_obs, option.goal,
+                                    config.high_reward_scale * option_reward, next_obs,
+                                    terminated, states, actions, i + 1)
+        replay = replay_add(state.replay, transition, option_done)
+        option = Option(option.start_obs, option.goal,
+                        jnp.where(option_done, 0.0, option_reward),
+                        jnp.where(option_done, 0, i + 1), states, actions)
+
+        episode_return = state.episode_return + reward
+        stats = _accumulate(stats, {
+            "episodes_ended": ended,
+            "successes": terminated,
+            "return_sum": jnp.where(ended, episode_return, 0.0),
+            "low_loss": low_info["loss"],
+            "low_updates": low_info["updated"],
+            "intrinsic_reward": r_low,
+            "options_done": option_done,
+            "goal_distance": jnp.where(option_done, jnp.linalg.norm(next_goal), 0.0),
+        })
+        state = state.replace(low=low, replay=replay, env_state=env_state, obs=obs,
+                              goal=next_goal, option=option,
+                              episode_return=jnp.where(ended, 0.0, episode_return),
+                              env_steps=state.env_steps + 1)
+        return (state, stats), None
+
+    def high_update(high: TD3State, replay: Replay, low_params, key):
+        k_sample, k_relabel, k_update = jax.random.split(key, 3)
+        batch = replay_sample(replay, k_sample, config.high.batch_size)
+        if config.relabel:
+            goals, chosen = relabel_goal(
+                lambda x: dqn.q_values(low_params, x), batch.states, batch.actions,
+                batch.length, batch.goal, batch.next_obs, k_relabel, goal_low, goal_high,
+                config.relabel_candidates, config.relabel_sigma, config.relabel_temperature)
+        else:
+            goals, chosen = batch.goal, jnp.zeros(config.high.batch_size, jnp.int32)
+        high, info = td3.update(
+            high, Batch(batch.obs, goals, batch.reward, batch.next_obs, batch.done), k_update)
+        return high, info["critic_loss"], jnp.mean(chosen == 0)
+
+    def block(carry, key):
+        keys = jax.random.split(key, k + 1)
+        (state, stats), _ = jax.lax.scan(env_step, carry, keys[:k])
+        ready = state.replay.size >= config.high.learning_starts
+        # Only the TD3 state goes through the cond, so the select that vmap makes of it never
+        # touches the replay buffers.
+        high, critic_loss, kept = jax.lax.cond(
+            ready, high_update, lambda h, *_: (h, jnp.float32(0), jnp.float32(0)),
+            state.high, state.replay, state.low.params, keys[k])
+        state = state.replace(high=high)
+        stats = _accumulate(stats, {"critic_loss": critic_loss, "high_updates": ready,
+                                    "relabel_kept": kept})
+        return (state, stats), None
+
+    def train_epoch(state: HiroState, key):
+        zero_i, zero_f = jnp.int32(0), jnp.float32(0)
+        stats = {"episodes_ended": zero_i, "successes": zero_i, "return_sum": zero_f,
+                 "low_loss": zero_f, "low_updates": zero_i, "intrinsic_reward": zero_f,
+                 "options_done": zero_i, "goal_distance": zero_f, "critic_loss": zero_f,
+                 "high_updates": zero_i, "relabel_kept": zero_f}
+        (state, stats), _ = jax.lax.scan(block, (state, stats), jax.random.split(key, n_blocks))
+        per = lambda total, count: total / jnp.maximum(count, 1).astype(jnp.float32)
+        metrics = {
+            "env_steps": state.env_steps,
+            "train_success": per(stats["successes"], stats["episodes_ended"]),
+            "episodes_ended": stats["episodes_ended"],
+            "episode_return": per(stats["return_sum"], stats["episodes_ended"]),
+            "n_goals": jnp.int32(0),
+            "low_loss": per(stats["low_loss"], stats["low_updates"]),
+            "critic_loss": per(stats["critic_loss"], stats["high_updates"]),
+            "relabel_kept": per(stats["relabel_kept"], stats["high_updates"]),
+            "goal_distance": per(stats["goal_distance"], stats["options_done"]),
+            "intrinsic_reward": stats["intrinsic_reward"] / config.steps_per_epoch,
+        }
+        return state, metrics
+
+    def evaluate(state: HiroState, key):
+        """Greedy high and low levels, ``eval_episodes`` episodes from the start."""
+
+        def episode(key):
+            obs, env_state = env.reset(key, env_params)
+
+            def step(carry, t):
+                env_state, obs, goal, done, success, ret = carry
+                goal = jnp.where(t % k == 0, td3.policy(state.high.actor_params, obs), goal)
+                q = dqn.q_values(state.low.params, jnp.concatenate([obs, goal]))
+                action = jnp.argmax(q).astype(jnp.int32)
+                next_obs, env_state, reward, terminated, truncated, _ = env.step(
+                    key, env_state, action, env_params)
+                live = ~done
+                carry = (env_state, next_obs, goal_transition(obs, goal, next_obs),
+                         done | terminated | truncated, success | (terminated & live),
+                         ret + jnp.where(live, reward, 0.0))
+                return carry, None
+
+            init = (env_state, obs, jnp.zeros(obs_dim), jnp.bool_(False), jnp.bool_(False),
+                    jnp.float32(0))
+            carry, _ = jax.lax.scan(step, init, jnp.arange(max_steps))
+            return carry[4], carry[5]
+
+        success, ret = jax.vmap(episode)(jax.random.split(key, config.eval_episodes))
+        return {"eval_success": jnp.mean(success.astype(jnp.float32)),
+                "eval_return": jnp.mean(ret)}
+
+    return Algorithm(name="hiro", config=config, init=init, train_epoch=train_epoch,
+                     evaluate=evaluate, host_update=None)

@@ -1,0 +1,348 @@
+"""The training driver: many seeds in one jitted epoch, host-side refinement between epochs.
+
+Seeds are independent streams: seed ``s`` uses ``jax.random.key(s)``, split into an init key
+and a loop key, and epoch ``e`` uses ``fold_in(loop_key, e)``. So a seed's run does not depend
+on which other seeds share the batch, and a run can be resumed from its :class:`LoopState`
+(the per-seed agent states, the loop keys and the next epoch index) at any epoch boundary.
+
+Each epoch is one call of ``jit(vmap(train_epoch then evaluate))`` over seeds; algorithms with a
+host step (GARA) then run ``host_update`` on the batched states before the next epoch.
+
+``total_steps`` is rounded *up* to whole epochs: a run takes ``ceil(total_steps /
+steps_per_epoch)`` epochs (120,000 steps are 40 epochs of 3,000).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gara_jax.algorithms import make_algorithm
+from gara_jax.algorithms.base import Algorithm
+
+
+class PartitionSnapshot(NamedTuple):
+    """A seed's goal partition at ``step`` env steps: boxes ``lo, hi`` (``[count, D]``)."""
+
+    step: int
+    lo: np.ndarray
+    hi: np.ndarray
+    count: int
+
+
+class LoopState(NamedTuple):
+    """Everything needed to continue a multi-seed run at an epoch boundary.
+
+    ``states`` is the algorithm's agent-state pytree batched over seeds; ``keys`` the per-seed
+    loop keys as raw key data (``uint32``, easy to save); ``epoch`` the next epoch to run.
+    """
+
+    states: Any
+    keys: jax.Array
+    epoch: int
+    seeds: tuple[int, ...]
+
+
+class EpochOutput(NamedTuple):
+    """What :func:`train_epochs` yields after each epoch (host-side values).
+
+    ``metrics`` maps names to ``[n_seeds]`` arrays; ``snapshots`` lists, per seed, the partition
+    snapshots taken at this epoch (empty lists when the partition did not change).
+    """
+
+    epoch: int
+    n_epochs: int
+    loop: LoopState
+    metrics: dict
+    host_info: dict | None
+    snapshots: list
+    epoch_s: float
+
+
+@dataclasses.dataclass
+class TrainResult:
+    """Outcome of :func:`train_many`.
+
+    Attributes:
+        config: the algorithm config.
+        algorithm: its name (``"gara"``, ``"gara_planning"``, ``"handcrafted"``, ``"hiro"``...).
+        seeds: the seeds, in row order.
+        metrics: name -> ``[n_seeds, n_epochs]`` array (at least ``env_steps``,
+            ``train_success``, ``eval_success``, ``episode_return``, ``n_goals``).
+        snapshots: per seed, the list of :class:`PartitionSnapshot` (step 0 and every epoch
+            after which the partition changed); empty lists for algorithms without one.
+        wall_time_s: wall time of the whole call (compilation included).
+        first_epoch_s: wall time of the first epoch run (includes compilation).
+        host_time_s: total time spent in ``host_update`` (GARA's refinement).
+        host_info: one dict per epoch from ``host_update`` (``None`` entries without one).
+        final: the :class:`LoopState` after the last epoch (pass as ``init_state`` to resume).
+    """
+
+    config: Any
+    algorithm: str
+    seeds: list
+    metrics: dict
+    snapshots: list
+    wall_time_s: float
+    first_epoch_s: float
+    host_time_s: float
+    host_info: list
+    final: LoopState
+
+
+def n_epochs_for(config, total_steps: int) -> int:
+    """Epochs needed to cover ``total_steps`` (rounded up to whole epochs).
+
+    Example:
+        >>> from gara_jax.algorithms import HandcraftedConfig
+        >>> n_epochs_for(HandcraftedConfig(), 120_000), n_epochs_for(HandcraftedConfig(), 1)
+        (40, 1)
+    """
+    if isinstance(total_steps, bool) or int(total_steps) != total_steps or total_steps < 1:
+        raise ValueError(f"total_steps: must be a positive integer, got {total_steps!r}")
+    return math.ceil(int(total_steps) / config.steps_per_epoch)
+
+
+def seed_list(seeds) -> list[int]:
+    """Validated seeds: a positive count ``n`` means ``0..n-1``; else distinct ints >= 0.
+
+    Example:
+        >>> seed_list(3), seed_list([7, 2])
+        ([0, 1, 2], [7, 2])
+    """
+    if isinstance(seeds, bool):
+        raise ValueError(f"seeds: must be a count or a sequence of ints, got {seeds!r}")
+    if isinstance(seeds, int | np.integer):
+        if seeds < 1:
+            raise ValueError(f"seeds: a seed count must be >= 1, got {seeds}")
+        return list(range(int(seeds)))
+    if not isinstance(seeds, Sequence | np.ndarray) or len(seeds) == 0:
+        raise ValueError(f"seeds: must be a count or a non-empty sequence of ints, got {seeds!r}")
+    out = []
+    for s in seeds:
+        if isinstance(s, bool) or not isinstance(s, int | np.integer) or s < 0:
+            raise ValueError(f"seeds: every seed must be an int >= 0, got {s!r}")
+        out.append(int(s))
+    if len(set(out)) != len(out):
+        raise ValueError(f"seeds: must be distinct, got {out}")
+    return out
+
+
+def _split_seed_keys(keys):
+    """Per-seed ``(init_key, loop_key_data)`` from typed keys ``[S]``."""
+    pairs = jax.vmap(lambda k: jax.random.split(k))(keys)
+    return pairs[:, 0], jax.random.key_data(pairs[:, 1])
+
+
+def _epoch_fn(alg: Algorithm):
+    def run(state, key_data, epoch):
+        key = jax.random.fold_in(jax.random.wrap_key_data(key_data), epoch)
+        k_train, k_eval = jax.random.split(key)
+        state, metrics = alg.train_epoch(state, k_train)
+        metrics = dict(metrics)
+        metrics.update(alg.evaluate(state, k_eval))
+        return state, metrics
+
+    return run
+
+
+class _Compiled(NamedTuple):
+    alg: Algorithm
+    init: Callable  # jit(vmap(init))
+    run: Callable  # jit(vmap(train_epoch then evaluate)), states donated
+
+
+def _build(config) -> _Compiled:
+    alg = make_algorithm(config)
+    # The old states are not reused after an epoch, so XLA may update them in place.
+    run = jax.jit(jax.vmap(_epoch_fn(alg), in_axes=(0, 0, None)), donate_argnums=0)
+    return _Compiled(alg, jax.jit(jax.vmap(alg.init)), run)
+
+
+_build_cached = functools.lru_cache(maxsize=8)(_build)
+
+
+def compiled(config) -> _Compiled:
+    """The algorithm and its jitted, seed-vmapped functions, cached per (hashable) config, so
+    that repeated runs of one config compile once per process."""
+    try:
+        hash(config)
+    except TypeError:
+        return _build(config)
+    return _build_cached(config)
+
+
+def init_loop(config, seeds) -> LoopState:
+    """Fresh per-seed agent states (epoch 0) for ``seeds`` (a count or a sequence).
+
+    Example:
+        >>> from gara_jax.algorithms import HandcraftedConfig
+        >>> loop = init_loop(HandcraftedConfig(), [3, 5])
+        >>> loop.epoch, loop.seeds, loop.keys.shape
+        (0, (3, 5), (2, 2))
+    """
+    seeds = seed_list(seeds)
+    init_keys, loop_keys = _split_seed_keys(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
+    states = compiled(config).init(init_keys)
+    return LoopState(states=states, keys=loop_keys, epoch=0, seeds=tuple(seeds))
+
+
+def _snapshots(states) -> list | None:
+    part = getattr(states, "partition", None)
+    if part is None:
+        return None
+    lo, hi, n, steps = jax.device_get((part.lo, part.hi, part.count, states.env_steps))
+    return [PartitionSnapshot(int(steps[i]), np.asarray(lo[i][: n[i]]), np.asarray(hi[i][: n[i]]),
+                              int(n[i])) for i in range(len(n))]
+
+
+def train_epochs(config, seeds, total_steps: int, *,
+                 init_state: LoopState | None = None) -> Iterator[EpochOutput]:
+    """Run a multi-seed training epoch by epoch, yielding an :class:`EpochOutput` after each.
+
+    The generator form is what checkpointing builds on: save ``out.loop`` after any epoch and
+    pass it back as ``init_state`` to continue (the remaining epochs then run exactly as they
+    would have). The agent states are *donated* to the next epoch (updated in place), so a
+    yielded ``out.loop.states`` is only valid until the generator resumes: save or
+    ``jax.device_get`` it before asking for the next epoch. ``init_state`` is consumed likewise.
+
+    Example:
+        >>> from gara_jax.algorithms import HandcraftedConfig
+        >>> cfg = HandcraftedConfig(steps_per_epoch=20, eval_episodes=1)
+        >>> [out.epoch for out in train_epochs(cfg, 2, total_steps=40)]
+        [0, 1]
+    """
+    alg, _, run = compiled(config)
+    n_epochs = n_epochs_for(config, total_steps)
+    loop = init_loop(config, seeds) if init_state is None else init_state
+    if init_state is not None and loop.epoch > n_epochs:
+        raise ValueError(f"init_state: epoch {loop.epoch} is past the run's {n_epochs} epochs")
+    for epoch in range(loop.epoch, n_epochs):
+        t0 = time.perf_counter()
+        states, metrics = run(loop.states, loop.keys, epoch)
+        metrics = {k: np.asarray(v) for k, v in jax.device_get(metrics).items()}
+        info = None
+        snaps = [[] for _ in loop.seeds]
+        if alg.host_update is not None:
+            states, info = alg.host_update(states, epoch)
+            changed = np.asarray(info.get("changed", np.zeros(len(loop.seeds), bool)))
+            if changed.any():
+                current = _snapshots(states)
+                for i in np.flatnonzero(changed):
+                    snaps[i].append(current[i])
+        jax.block_until_ready(states)
+        loop = LoopState(states=states, keys=loop.keys, epoch=epoch + 1, seeds=loop.seeds)
+        yield EpochOutput(epoch, n_epochs, loop, metrics, info, snaps, time.perf_counter() - t0)
+
+
+def train_many(config, seeds, total_steps: int, *,
+               progress: Callable[[int, int, dict], None] | None = None,
+               callback: Callable[[EpochOutput], bool | None] | None = None,
+               init_state: LoopState | None = None) -> TrainResult:
+    """Train ``config``'s algorithm on several seeds at once and collect the curves.
+
+    Args:
+        config: ``GaraConfig``, ``HandcraftedConfig`` or ``HiroConfig``.
+        seeds: a seed count ``n`` (seeds ``0..n-1``) or a sequence of distinct ints.
+        total_steps: environment steps per seed, rounded up to whole epochs.
+        progress: called as ``progress(epochs_done, n_epochs, metrics)`` after every epoch
+            (``metrics``: name -> ``[n_seeds]``), e.g. to drive a progress bar.
+        callback: called with each :class:`EpochOutput`; returning ``True`` stops the run after
+            that epoch (the result then holds the epochs run so far). Use it to checkpoint
+            ``out.loop``.
+        init_state: a :class:`LoopState` to continue from (its seeds must match ``seeds``);
+            its states are consumed (donated to the first epoch run).
+
+    Returns:
+        A :class:`TrainResult` covering the epochs run by this call.
+
+    Example:
+        >>> from gara_jax.algorithms import HandcraftedConfig
+        >>> cfg = HandcraftedConfig(steps_per_epoch=20, eval_episodes=1)
+        >>> res = train_many(cfg, seeds=2, total_steps=50)
+        >>> res.metrics["eval_success"].shape, res.metrics["env_steps"][0].tolist()
+        ((2, 3), [20, 40, 60])
+    """
+    t_start = time.perf_counter()
+    seeds = seed_list(seeds)
+    if init_state is not None and list(init_state.seeds) != seeds:
+        raise ValueError(f"init_state: its seeds {list(init_state.seeds)} differ from {seeds}")
+    alg = compiled(config).alg
+    loop = init_loop(config, seeds) if init_state is None else init_state
+    start = _snapshots(loop.states)
+    snapshots = [[] for _ in seeds] if start is None else [
+        [s] if loop.epoch == 0 else [] for s in start]
+    rows, host_info, first_epoch_s, host_s = [], [], None, 0.0
+    for out in train_epochs(config, seeds, total_steps, init_state=loop):
+        rows.append(out.metrics)
+        host_info.append(out.host_info)
+        if out.host_info is not None:
+            host_s += float(out.host_info.get("host_s", 0.0))
+        for i, snaps in enumerate(out.snapshots):
+            snapshots[i].extend(snaps)
+        first_epoch_s = out.epoch_s if first_epoch_s is None else first_epoch_s
+        loop = out.loop
+        if progress is not None:
+            progress(out.epoch + 1, out.n_epochs, out.metrics)
+        if callback is not None and callback(out):
+            break
+    metrics = {k: np.stack([r[k] for r in rows], axis=1) for k in rows[0]} if rows else {}
+    return TrainResult(config=config, algorithm=alg.name, seeds=seeds, metrics=metrics,
+                       snapshots=snapshots, wall_time_s=time.perf_counter() - t_start,
+                       first_epoch_s=first_epoch_s or 0.0, host_time_s=host_s,
+                       host_info=host_info, final=loop)
+
+
+def make_train(config, total_steps: int = 120_000):
+    """``train(key) -> (final_state, metrics)`` for one seed, PureJaxRL style.
+
+    For algorithms without a host step (Handcrafted, HIRO) ``train`` is a pure function of the
+    key (one ``lax.scan`` over epochs): jit it, and ``vmap`` it over keys for many seeds.
+    ``metrics`` maps names to ``[n_epochs]`` arrays. GARA needs the host between epochs, so
+    its ``train`` runs the epoch loop in Python for the one seed (not jittable; use
+    :func:`train_many` for many seeds). Both use the key the way :func:`train_many` uses
+    ``jax.random.key(seed)``.
+
+    Example:
+        >>> import jax
+        >>> from gara_jax.algorithms import HandcraftedConfig
+        >>> train = make_train(HandcraftedConfig(steps_per_epoch=20, eval_episodes=1), 40)
+        >>> state, metrics = jax.jit(train)(jax.random.key(0))
+        >>> metrics["env_steps"].tolist()
+        [20, 40]
+    """
+    alg, init_many, _ = compiled(config)
+    n_epochs = n_epochs_for(config, total_steps)
+    epoch_fn = _epoch_fn(alg)
+
+    if alg.host_update is None:
+        def train(key):
+            init_key, loop_key = _split_seed_keys(key[None])
+            state = alg.init(init_key[0])
+
+            def body(state, epoch):
+                return epoch_fn(state, loop_key[0], epoch)
+
+            return jax.lax.scan(body, state, jnp.arange(n_epochs))
+
+        return train
+
+    def train_hosted(key):
+        init_key, loop_key = _split_seed_keys(jnp.asarray(key)[None])
+        loop = LoopState(states=init_many(init_key), keys=loop_key, epoch=0, seeds=(0,))
+        rows = []
+        for out in train_epochs(config, [0], total_steps, init_state=loop):
+            rows.append(out.metrics)
+            loop = out.loop
+        state = jax.tree.map(lambda a: a[0], loop.states)
+        return state, {k: np.stack([r[k][0] for r in rows]) for k in rows[0]}
+
+    return train_hosted

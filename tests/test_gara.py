@@ -1,0 +1,176 @@
+"""GARA / Handcrafted agent: intrinsic reward, low-level learning, split bookkeeping,
+refinement inside training."""
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import envs
+from gara_jax.agents.dqn import DQNConfig, Transition, make_dqn
+from gara_jax.algorithms import GaraConfig, HandcraftedConfig, make_algorithm
+from gara_jax.algorithms.gara import _apply_split, intrinsic_reward
+
+
+def test_intrinsic_reward_once_per_option_closed_box():
+    lo, hi = jnp.array([1.0, 0.0, -1.0, -1.0]), jnp.array([1.5, 2.0, 1.0, 1.0])
+    on_face = jnp.array([1.0, 2.0, 0.0, 0.0])  # boxes are closed: the face counts as inside
+    r, inside, first = intrinsic_reward(on_face, lo, hi, jnp.asarray(False))
+    assert (float(r), bool(inside), bool(first)) == (1.0, True, True)
+    r, inside, first = intrinsic_reward(on_face, lo, hi, jnp.asarray(True))
+    assert (float(r), bool(inside), bool(first)) == (0.0, True, False)
+    r, _, _ = intrinsic_reward(jnp.array([0.9, 1.0, 0.0, 0.0]), lo, hi, jnp.asarray(False))
+    assert float(r) == pytest.approx(-0.1)
+    # goal_membership="partition": a face state that belongs to another goal is not inside.
+    r, inside, _ = intrinsic_reward(on_face, lo, hi, jnp.asarray(False),
+                                    in_target=jnp.asarray(False))
+    assert float(r) == pytest.approx(-0.1) and not bool(inside)
+
+
+def test_dqn_learns_to_reach_a_nearby_box():
+    """The goal-conditioned DQN with the intrinsic reward learns, in 2,500 steps, to reach a
+    box up and to the right of the start (a fresh network does not)."""
+    env, params = envs.make("u_maze")
+    lo, hi = jnp.array([0.5, 0.5, -1.0, -1.0]), jnp.array([1.0, 1.0, 1.0, 1.0])
+    goal, horizon = jnp.concatenate([lo, hi]), 15
+    dqn = make_dqn(DQNConfig(buffer_size=2000, learning_starts=200, epsilon_decay=0.998,
+                             target_update_every=50), 12, 4)
+
+    def train(key):
+        obs, es = env.reset(key, params)
+
+        def step(c, key):
+            ds, obs, es, t = c
+            k_act, k_dqn = jax.random.split(key)
+            x = jnp.concatenate([obs, goal])
+            a = dqn.act(ds, x, k_act)
+            nobs, nes, r, term, _, _ = env.step(key, es, a, params)
+            ri, _, first = intrinsic_reward(nobs, lo, hi, False)
+            ds, _ = dqn.observe(
+                ds, Transition(x, a, ri + r, jnp.concatenate([nobs, goal]), first | term), k_dqn)
+            end = first | term | (t + 1 >= horizon)  # short episodes from the start
+            obs0, es0 = env.reset(key, params)
+            obs = jnp.where(end, obs0, nobs)
+            es = jax.tree.map(lambda a, b: jnp.where(end, a, b), es0, nes)
+            return (ds, obs, es, jnp.where(end, 0, t + 1)), None
+
+        c, _ = jax.lax.scan(step, (dqn.init(key), obs, es, jnp.int32(0)),
+                            jax.random.split(key, 2500))
+        return c[0]
+
+    def greedy_reaches(ds):
+        obs, es = env.reset(jax.random.key(0), params)
+
+        def step(c, _):
+            obs, es, hit = c
+            a = jnp.argmax(dqn.q_values(ds.params, jnp.concatenate([obs, goal])))
+            obs, es, *_ = env.step(jax.random.key(0), es, a, params)
+            return (obs, es, hit | jnp.all((obs >= lo) & (obs <= hi))), None
+
+        return jax.lax.scan(step, (obs, es, jnp.asarray(False)), None, horizon)[0][2]
+
+    keys = jax.random.split(jax.random.key(0), 4)
+    trained = jax.jit(jax.vmap(lambda k: greedy_reaches(train(k))))(keys)
+    fresh = jax.jit(jax.vmap(lambda k: greedy_reaches(dqn.init(k))))(keys)
+    assert int(trained.sum()) == 4
+    assert int(fresh.sum()) <= 1
+
+
+class _Verdict(NamedTuple):
+    reaching_lo: np.ndarray
+    reaching_hi: np.ndarray
+    nonreaching_lo: np.ndarray
+    nonreaching_hi: np.ndarray
+
+
+def _boxes(*xy):
+    lo = np.array([[x0, y0, -1.0, -1.0] for x0, x1, y0, y1 in xy], np.float32)
+    hi = np.array([[x1, y1, 1.0, 1.0] for x0, x1, y0, y1 in xy], np.float32)
+    return lo, hi
+
+
+def _seed(max_goals):
+    from gara_jax.partition import Partition
+
+    lo, hi = _boxes((0, 1, 0, 3), (1, 3, 0, 3))
+    G = max_goals
+    q = np.zeros((G, G), np.float32)
+    q[0, 0], q[0, 1], q[1, 0], q[1, 1] = 0.1, 0.2, 0.5, 0.3
+    succ = np.zeros((G, G), bool)
+    succ[1, 0] = True
+    marks = lambda: np.zeros((G, G), bool)
+    return dict(partition=Partition.create(lo, hi, G), q=q, succeeded=succ,
+                reachable=marks(), unreachable=marks(), blocked=marks())
+
+
+def test_apply_split_updates_goal_indexed_arrays():
+    from gara_jax.partition import check_tiling
+
+    seed = _seed(5)
+    reach_lo, reach_hi = _boxes((0, 1, 2, 3))
+    miss_lo, miss_hi = _boxes((0, 1, 0, 1), (0, 1, 1, 2))
+    assert _apply_split(seed, 0, 1, _Verdict(reach_lo, reach_hi, miss_lo, miss_hi)) == "split"
+    p = seed["partition"]
+    assert int(p.count) == 4
+    check_tiling(p, np.array([0, 0, -1, -1.0]), np.array([3, 3, 1, 1.0]))
+    np.testing.assert_array_equal(np.asarray(p.lo)[[0, 2, 3]], np.concatenate([reach_lo, miss_lo]))
+    q, pieces, missing = seed["q"], [0, 2, 3], [2, 3]
+    for piece in pieces:
+        assert q[1, piece] == pytest.approx(0.5)  # column copied from the split box
+        assert bool(seed["succeeded"][1, piece])
+        for other in pieces:
+            assert q[piece, other] == pytest.approx(0.1)
+    assert q[0, 1] == pytest.approx(0.2)  # the reaching piece keeps its value towards G_d
+    assert all(q[m, 1] == 0.0 for m in missing)  # non-reaching pieces: zeroed, as the reference
+    assert bool(seed["reachable"][0, 1]) and bool(seed["succeeded"][0, 1])
+    assert all(seed["unreachable"][m, 1] and not seed["succeeded"][m, 1] for m in missing)
+    assert np.argwhere(seed["reachable"]).tolist() == [[0, 1]]
+
+
+def test_apply_split_capacity_and_plain_verdicts():
+    seed = _seed(3)
+    reach_lo, reach_hi = _boxes((0, 1, 2, 3))
+    miss_lo, miss_hi = _boxes((0, 1, 0, 1), (0, 1, 1, 2))
+    before = np.asarray(seed["partition"].lo).copy()
+    assert _apply_split(seed, 0, 1, _Verdict(reach_lo, reach_hi, miss_lo, miss_hi)) == "capacity"
+    assert bool(seed["blocked"][0, 1]) and int(seed["partition"].count) == 2
+    np.testing.assert_array_equal(np.asarray(seed["partition"].lo), before)
+    whole_lo, whole_hi = _boxes((0, 1, 0, 3))
+    empty = np.zeros((0, 4), np.float32)
+    assert _apply_split(seed, 0, 1, _Verdict(whole_lo, whole_hi, empty, empty)) == "reaches"
+    assert bool(seed["reachable"][0, 1]) and not bool(seed["unreachable"][0, 1])
+    # Nothing reaches: no mark, so the pair can be analysed again later.
+    q = seed["q"].copy()
+    assert _apply_split(seed, 1, 0, _Verdict(empty, empty, *_boxes((1, 3, 0, 3)))) == "no_reach"
+    assert not seed["unreachable"].any() and np.array_equal(seed["q"], q)
+
+
+def test_handcrafted_has_no_host_step_and_six_goals():
+    alg = make_algorithm(HandcraftedConfig(steps_per_epoch=10, eval_episodes=1))
+    assert alg.host_update is None and alg.name == "handcrafted"
+    state = alg.init(jax.random.key(0))
+    assert int(state.partition.count) == 6
+
+
+@pytest.mark.parametrize("cls,field,value", [
+    (GaraConfig, "tau1", 0.0), (GaraConfig, "tau2", 0.9), (GaraConfig, "refine_method", "x"),
+    (GaraConfig, "min_volume_ratio", 1.0), (GaraConfig, "min_steps", -1),
+    (GaraConfig, "memory_capacity", 0), (HandcraftedConfig, "env", "nowhere"),
+    (HandcraftedConfig, "k", 0), (HandcraftedConfig, "steps_per_epoch", 2.5),
+    (HandcraftedConfig, "planning", "yes"), (HandcraftedConfig, "low", None),
+    (HandcraftedConfig, "goal_membership", "open"), (HandcraftedConfig, "eval_epsilon_low", 2.0),
+    (GaraConfig, "hindsight_memory", 1)])
+def test_config_validation_names_the_field(cls, field, value):
+    with pytest.raises(ValueError, match=field):
+        cls(**{field: value})
+
+
+def test_configs_are_json_serialisable():
+    import dataclasses
+    import json
+
+    for cfg in (GaraConfig(), HandcraftedConfig(planning=True)):
+        text = json.dumps(dataclasses.asdict(cfg))
+        assert "min_steps" in text or "max_goals" in text

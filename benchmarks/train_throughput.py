@@ -175,6 +175,8 @@ def main(argv=None):
     parser.add_argument("--max-epoch-s", type=float, default=60.0,
                         help="skip an algorithm's larger seed counts once one of its epochs "
                              "took longer than this (seconds)")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the rows of the existing JSON that this run does not measure")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
 
@@ -193,10 +195,20 @@ def main(argv=None):
                 skipped.append({"algorithm": name, "n_seeds": n})
                 print(f"{name:14s} seeds={n:4d}  skipped (slower than --max-epoch-s)")
                 continue
-            row = {"algorithm": name, **bench_one(config, n, args.epochs)}
+            row = {"algorithm": name, **bench_one(config, n, args.epochs),
+                   "load_average": os.getloadavg(),
+                   "measured_at": time.strftime("%Y-%m-%dT%H:%M:%S")}
             rows.append(row)
             print(f"{name:14s} seeds={n:4d}  {row['agent_steps_per_s']:10,.0f} steps/s  "
                   f"compile {row['compile_s']:.1f}s", flush=True)
+    if args.merge and args.out.exists():
+        measured = {(r["algorithm"], r["n_seeds"]) for r in rows}
+        kept = [r for r in json.loads(args.out.read_text())["rows"]
+                if (r["algorithm"], r["n_seeds"]) not in measured]
+        order = list(configs())
+        rows = sorted(kept + rows, key=lambda r: (order.index(r["algorithm"])
+                                                  if r["algorithm"] in order else 99,
+                                                  r["n_seeds"]))
     result = {"machine": machine_info(), "load_average_start": load_start,
               "load_average_end": os.getloadavg(), "rows": rows, "skipped": skipped}
     if args.reproduction:

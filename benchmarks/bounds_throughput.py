@@ -255,7 +255,8 @@ def main(argv=None) -> dict:
     result = {
         "benchmark": "bounds_throughput",
         "machine": info,
-        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "config": {k: (os.path.relpath(v) if isinstance(v, Path) else v)
+                   for k, v in vars(args).items()},
         "results": rows,
         "refine": refine_rows,
         "trained_model_mse": trained_loss,

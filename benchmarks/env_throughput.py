@@ -405,7 +405,8 @@ def main(argv=None) -> dict:
         "benchmark": "env_throughput",
         "env": args.env,
         "machine": info,
-        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in vars(args).items()},
+        "config": {k: (os.path.relpath(v) if isinstance(v, Path) else v)
+                   for k, v in vars(args).items()},
         "baseline": {"method": fastest["method"], "steps_per_s": baseline},
         "results": rows,
         "table": table,

@@ -482,21 +482,13 @@ class Maze:
         next observation (what a TD target needs).
         """
         key_step, key_reset = jax.random.split(key)
-        del key_step  # the transition is deterministic
-        next_state, reward, terminated, truncated, hit_bound, hit_wall = self._transition(
-            state, action, params
+        _, next_state, reward, terminated, truncated, info = self.step(
+            key_step, state, action, params
         )
         _, reset_state = self.reset(key_reset, params)
         done = terminated | truncated
         # Field by field (each with the batch shape), so the selects stay elementwise.
         state = jax.tree.map(lambda r, s: jnp.where(done, r, s), reset_state, next_state)
-        final_obs = state_to_vector(next_state)
-        info = {
-            "final_obs": final_obs,
-            "discount": 1.0 - terminated.astype(final_obs.dtype),
-            "hit_bound": hit_bound,
-            "hit_wall": hit_wall,
-        }
         return state_to_vector(state), state, reward, terminated, truncated, info
 
     def _transition(self, state: EnvState, action, params: EnvParams):

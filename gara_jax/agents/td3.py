@@ -24,6 +24,7 @@ import numpy as np
 import optax
 from flax import struct
 
+from gara_jax.agents.dqn import Transition
 from gara_jax.networks import MLP
 
 
@@ -70,14 +71,8 @@ class TD3Config:
                 f"got {self.learning_starts}")
 
 
-class Batch(NamedTuple):
-    """A batch (or one) of transitions for :func:`TD3.update`; ``done`` cuts the bootstrap."""
-
-    obs: jnp.ndarray
-    action: jnp.ndarray
-    reward: jnp.ndarray
-    next_obs: jnp.ndarray
-    done: jnp.ndarray
+# A batch (or one) of transitions for :func:`TD3.update`: the same fields as the DQN's.
+Batch = Transition
 
 
 @struct.dataclass

@@ -120,7 +120,7 @@ class HandcraftedConfig:
 
 
 @dataclasses.dataclass(frozen=True)
-class GaraConfig:
+class GaraConfig(HandcraftedConfig):
     """GARA: the two-level agent that refines its goal partition by reachability analysis.
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
@@ -146,20 +146,7 @@ class GaraConfig:
         ValueError: refine_method: must be one of ('crown', 'ibp'), got 'zonotope'
     """
 
-    env: str = "u_maze"
-    k: int = 5
-    steps_per_epoch: int = 3000
-    eval_episodes: int = 10
-    low: DQNConfig = DQNConfig(loss="all_actions")
-    high: hl.HighLevelConfig = hl.HighLevelConfig()
-    planning: bool = False
-    max_goals: int = 64
-    reach_reward: float = 1.0
-    outside_penalty: float = -0.1
-    eval_epsilon_high: float = 0.0
-    eval_epsilon_low: float = 0.0
-    terminal_on_entry: bool = False
-    goal_membership: str = "box"
+    max_goals: int = 64  # capacity for refinement (Handcrafted needs 6)
     memory_capacity: int = 10_000
     forward: fm.ForwardModelConfig = fm.ForwardModelConfig()
     min_steps: int = 5000
@@ -171,7 +158,7 @@ class GaraConfig:
     max_jobs_per_seed: int = 4
 
     def __post_init__(self):
-        _validate_common(self)
+        super().__post_init__()
         _positive_int(self, "memory_capacity", "max_jobs_per_seed")
         if int(self.min_steps) != self.min_steps or self.min_steps < 0:
             raise ValueError(f"min_steps: must be an integer >= 0, got {self.min_steps}")

@@ -339,3 +339,29 @@ def test_same_key_same_metrics_and_different_key_differs(tiny):
     for name in e1:
         np.testing.assert_array_equal(e1[name], e2[name])
     assert not np.array_equal(h1[1]["intrinsic_reward"], h3[1]["intrinsic_reward"])
+
+
+@pytest.mark.parametrize("delay", [2, 64])
+def test_delayed_actor_steps_follow_the_block_schedule(delay):
+    # 100 steps = 20 blocks of k = 5, one option stored per block; the critic steps on every
+    # block from the one that stores the 8th option (learning_starts); the actor (and the soft
+    # target update) on the odd blocks among those with delay 2, never with a delay longer
+    # than the epoch.
+    cfg = dataclasses.replace(TINY, high=dataclasses.replace(TINY.high, policy_delay=delay))
+    algo = make_hiro(cfg)
+    state = algo.init(jax.random.key(0))
+    new, _ = jax.jit(jax.vmap(algo.train_epoch))(
+        jax.tree.map(lambda x: x[None], state), jax.random.key(1)[None])
+    new = jax.tree.map(lambda x: x[0], new)
+    critic_steps = int(new.high.updates)
+    assert critic_steps > 0
+    changed = lambda a, b: any(bool(jnp.any(x != y)) for x, y in zip(  # noqa: E731
+        jax.tree.leaves(a), jax.tree.leaves(b), strict=True))
+    assert changed(new.high.critic_params, state.high.critic_params)
+    assert critic_steps == 20 - (TINY.high.learning_starts - 1)
+    first = 20 - critic_steps
+    actor_steps = sum(b % delay == delay - 1 for b in range(first, 20))
+    assert changed(new.high.actor_params, state.high.actor_params) == (actor_steps > 0)
+    assert changed(new.high.critic_target, state.high.critic_target) == (actor_steps > 0)
+    # Adam's step count is the number of actor steps taken.
+    assert int(jax.tree.leaves(new.high.actor_opt)[0]) == actor_steps

@@ -106,12 +106,19 @@ class TD3(NamedTuple):
       clipped to the action box.
     - ``update(state, batch, key) -> (state, info)``: one critic step on ``batch``; every
       ``policy_delay``-th call also an actor step and a soft target update.
+    - ``critic_update(state, batch, key) -> (state, critic_loss)`` and
+      ``actor_update(state, obs) -> (state, actor_loss)`` (actor step plus soft target
+      update): the two halves of ``update``, for callers that schedule the delayed actor step
+      themselves (under ``vmap`` the ``cond`` in ``update`` has a per-seed predicate, so it
+      becomes a select that computes the actor step on every call).
     - ``q_values(critic_params, obs, action) -> (q1, q2)``, ``policy(actor_params, obs)``.
     """
 
     init: Any
     act: Any
     update: Any
+    critic_update: Any
+    actor_update: Any
     q_values: Any
     policy: Any
 
@@ -202,17 +209,22 @@ def make_td3(config: TD3Config, obs_dim: int, act_dim: int, act_low, act_high) -
         )
         return state, loss
 
-    def update(state: TD3State, batch: Batch, key):
+    def critic_step(state: TD3State, batch: Batch, key):
         loss, grads = jax.value_and_grad(critic_loss)(state.critic_params, state, batch, key)
         updates, opt = critic_opt.update(grads, state.critic_opt, state.critic_params)
         state = state.replace(critic_params=optax.apply_updates(state.critic_params, updates),
                               critic_opt=opt, updates=state.updates + 1)
+        return state, loss
+
+    def update(state: TD3State, batch: Batch, key):
+        state, loss = critic_step(state, batch, key)
         delayed = state.updates % config.policy_delay == 0
         state, a_loss = jax.lax.cond(
             delayed, actor_step, lambda s, o: (s, jnp.zeros((), jnp.float32)), state, batch.obs)
         return state, {"critic_loss": loss, "actor_loss": a_loss}
 
-    return TD3(init=init, act=act, update=update, q_values=q_values, policy=policy)
+    return TD3(init=init, act=act, update=update, critic_update=critic_step,
+               actor_update=actor_step, q_values=q_values, policy=policy)
 
 
 # ------------------------------------------------------------------------------------------------

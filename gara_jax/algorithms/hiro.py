@@ -16,6 +16,9 @@ One epoch is one ``lax.scan`` over blocks of ``k`` environment steps (an inner s
 level takes one TD3 step per block, i.e. per ``k`` environment steps, as HIRO trains its higher
 level once per ``c`` steps. Doing it once per block rather than "when an option ends" keeps it
 out of the per-step loop, where ``vmap`` would turn a ``cond`` into computing it every step.
+TD3's delayed actor step (every ``policy_delay``-th critic step) runs on every
+``policy_delay``-th block of an epoch, a schedule shared by all seeds so that it stays a real
+branch under ``vmap`` (a per-seed counter would make it a select computed on every block).
 
 Example:
     >>> import jax
@@ -36,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 from typing import NamedTuple
 
 import jax
@@ -385,7 +389,7 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                               env_steps=state.env_steps + 1)
         return (state, stats), None
 
-    def high_update(high: TD3State, replay: Replay, low_params, key):
+    def high_update(high: TD3State, replay: Replay, low_params, key, with_actor: bool):
         k_sample, k_relabel, k_update = jax.random.split(key, 3)
         batch = replay_sample(replay, k_sample, config.high.batch_size)
         if config.relabel:
@@ -395,18 +399,31 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                 config.relabel_candidates, config.relabel_sigma, config.relabel_temperature)
         else:
             goals, chosen = batch.goal, jnp.zeros(config.high.batch_size, jnp.int32)
-        high, info = td3.update(
+        high, critic_loss = td3.critic_update(
             high, Batch(batch.obs, goals, batch.reward, batch.next_obs, batch.done), k_update)
-        return high, info["critic_loss"], jnp.mean(chosen == 0)
+        if with_actor:
+            high, _ = td3.actor_update(high, batch.obs)
+        return high, critic_loss, jnp.mean(chosen == 0)
 
-    def block(carry, key):
+    def skip_update(high, *_):
+        return high, jnp.float32(0), jnp.float32(0)
+
+    def block(carry, xs):
+        key, index = xs
         keys = jax.random.split(key, k + 1)
         (state, stats), _ = jax.lax.scan(env_step, carry, keys[:k])
         ready = state.replay.size >= config.high.learning_starts
-        # Only the TD3 state goes through the cond, so the select that vmap makes of it never
-        # touches the replay buffers.
+        # TD3's delayed actor step on every `policy_delay`-th block of the epoch. `index` is the
+        # same for every seed, so under vmap this cond stays a branch and the actor step runs
+        # only where it is due; `ready` differs per seed, so its cond becomes a select, which
+        # is why only the TD3 state goes through it (never the replay buffers).
+        due = index % config.high.policy_delay == config.high.policy_delay - 1
         high, critic_loss, kept = jax.lax.cond(
-            ready, high_update, lambda h, *_: (h, jnp.float32(0), jnp.float32(0)),
+            due,
+            lambda *a: jax.lax.cond(ready, partial(high_update, with_actor=True), skip_update,
+                                    *a),
+            lambda *a: jax.lax.cond(ready, partial(high_update, with_actor=False), skip_update,
+                                    *a),
             state.high, state.replay, state.low.params, keys[k])
         state = state.replace(high=high)
         stats = _accumulate(stats, {"critic_loss": critic_loss, "high_updates": ready,
@@ -419,7 +436,8 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                  "low_loss": zero_f, "low_updates": zero_i, "intrinsic_reward": zero_f,
                  "options_done": zero_i, "goal_distance": zero_f, "critic_loss": zero_f,
                  "high_updates": zero_i, "relabel_kept": zero_f}
-        (state, stats), _ = jax.lax.scan(block, (state, stats), jax.random.split(key, n_blocks))
+        (state, stats), _ = jax.lax.scan(
+            block, (state, stats), (jax.random.split(key, n_blocks), jnp.arange(n_blocks)))
         per = lambda total, count: total / jnp.maximum(count, 1).astype(jnp.float32)
         metrics = {
             "env_steps": state.env_steps,

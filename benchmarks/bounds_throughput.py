@@ -14,6 +14,11 @@ first GARA goal ``[0,1]x[0,3]`` towards the second ``[1,3]x[0,3]`` (for (a): ``[
 so that the start box splits), full velocity ranges; the ``--jobs`` jobs slide the target along
 x. "first" includes compiling, "warm" is the best of ``--repeats`` later calls.
 
+Floor rows: what a jitted call costs before any layer, for each batch: a jitted function that
+takes IBP's two ``[B, 12]`` inputs and returns their sum and difference (IBP's own first step),
+next to the same two operations in NumPy. The ratio bounds what any IBP formulation can reach
+with XLA on this machine.
+
 Usage (from the repository root, with the package installed or ``PYTHONPATH=.``):
     python benchmarks/bounds_throughput.py                          # full run
     python benchmarks/bounds_throughput.py --batches 64 4096 --repeats 3   # quick
@@ -87,6 +92,19 @@ def bench_bounds(arch: str, method: str, batch: int, repeats: int, seed: int) ->
         "boxes_per_s_median": batch / statistics.median(wall),
         "boxes_per_cpu_s_best": batch / min(cpu),
     }
+
+
+def bench_floor(batch: int, repeats: int, seed: int) -> dict:
+    """Seconds per call of IBP's first step alone, jitted XLA against NumPy (see docstring)."""
+    lo, hi = random_boxes(batch, seed + 1)
+    first_step = jax.jit(lambda lo, hi: (lo + hi, hi - lo))
+    lo_np, hi_np = np.asarray(lo), np.asarray(hi)
+    calls = max(1, min(500, int(5e5 // batch)))
+    jax.block_until_ready(first_step(lo, hi))
+    xla, _ = time_rounds(lambda: first_step(lo, hi), calls, repeats)
+    numpy, _ = time_rounds(lambda: (lo_np + hi_np, hi_np - lo_np), calls, repeats)
+    return {"batch": batch, "xla_s_per_call_best": min(xla), "numpy_s_per_call_best": min(numpy),
+            "xla_ceiling_boxes_per_s": batch / min(xla)}
 
 
 def translation_model():
@@ -234,6 +252,7 @@ def main(argv=None) -> dict:
                 rows.append(bench_bounds(arch, method, batch, args.repeats, args.seed))
                 print(f"  {arch} {method} {batch}: {rows[-1]['boxes_per_s_best']:.3g} boxes/s",
                       file=sys.stderr, flush=True)
+    floor_rows = [bench_floor(batch, args.repeats, args.seed) for batch in args.batches]
     refine_rows = []
     trained_loss = None
     if not args.no_refine:
@@ -248,6 +267,11 @@ def main(argv=None) -> dict:
     print(f"Bound throughput (float32), {info['backend']} backend, {info['cpu_count']} CPUs, "
           f"jax {info['jax']}, load average {info['load_average_1min_at_start']:.1f} at start")
     print(table)
+    print("\nFloor: IBP's first step alone, (lo + hi, hi - lo) on [B, 12] float32")
+    for r in floor_rows:
+        print(f"  batch {r['batch']}: jitted {1e6 * r['xla_s_per_call_best']:.1f} us "
+              f"(ceiling {r['xla_ceiling_boxes_per_s']:.3g} boxes/s), "
+              f"NumPy {1e6 * r['numpy_s_per_call_best']:.1f} us")
     rtable = refine_table(refine_rows) if refine_rows else ""
     if rtable:
         print(f"\nRefinement wall time (trained model's final MSE {trained_loss:.4f})")
@@ -258,6 +282,7 @@ def main(argv=None) -> dict:
         "config": {k: (os.path.relpath(v) if isinstance(v, Path) else v)
                    for k, v in vars(args).items()},
         "results": rows,
+        "floor": floor_rows,
         "refine": refine_rows,
         "trained_model_mse": trained_loss,
         "table": table,

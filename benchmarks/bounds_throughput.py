@@ -140,20 +140,26 @@ def trained_model(seed: int, steps: int = 300):
     return params, float(loss)
 
 
+def first_and_warm(fn, repeats: int):
+    """``fn()``'s result, the first call's seconds (compiling) and ``repeats`` later calls'."""
+    start = time.perf_counter()
+    result = fn()
+    first = time.perf_counter() - start
+    warm = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        warm.append(time.perf_counter() - start)
+    return result, first, warm
+
+
 def bench_refine(name: str, model, method: str, jobs: int, repeats: int,
                  target_x_lo: float = 1.0) -> list[dict]:
     lo, hi = (np.array(a) for a in gara_initial().boxes())
     lo[1, 0] = target_x_lo
     args = (lo[0], hi[0], lo[1], hi[1])
     rows = []
-    start = time.perf_counter()
-    res = refine(model, *args, method=method)
-    first = time.perf_counter() - start
-    warm = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        refine(model, *args, method=method)
-        warm.append(time.perf_counter() - start)
+    res, first, warm = first_and_warm(lambda: refine(model, *args, method=method), repeats)
     rows.append({
         "model": name, "method": method, "jobs": 1, "first_call_s": first, "warm_s": warm,
         "n_analysed": res.n_analysed, "depth": res.depth,
@@ -165,14 +171,8 @@ def bench_refine(name: str, model, method: str, jobs: int, repeats: int,
     shift = np.linspace(0, 1, jobs)[:, None] * np.array([1.0, 0, 0, 0])
     many = (np.repeat(lo[:1], jobs, 0), np.repeat(hi[:1], jobs, 0),
             np.repeat(lo[1:], jobs, 0) - shift, np.repeat(hi[1:], jobs, 0) - shift)
-    start = time.perf_counter()
-    results = refine_many(stacked, *many, method=method)
-    first = time.perf_counter() - start
-    warm = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        refine_many(stacked, *many, method=method)
-        warm.append(time.perf_counter() - start)
+    results, first, warm = first_and_warm(
+        lambda: refine_many(stacked, *many, method=method), repeats)
     rows.append({
         "model": name, "method": method, "jobs": jobs, "first_call_s": first, "warm_s": warm,
         "n_analysed": sum(r.n_analysed for r in results), "depth": max(r.depth for r in results),

@@ -5,7 +5,15 @@ Throughput rows: boxes per second of ``gara_jax.reach.ibp`` / ``crown`` (the pub
 input boxes (every dimension has width), for each batch size. Compilation is timed apart
 (``lower().compile()`` of the jitted core); then one warm-up call, then ``--repeats`` rounds of
 calls, each call followed by ``block_until_ready``; the best and the median round are reported,
-with the process CPU time per call (on a loaded machine wall time rises, CPU time much less).
+with the process CPU time per call (on a loaded machine wall time rises, CPU time much less)
+and the process's voluntary context switches per call (a thread waiting for another).
+
+``--dispatch sync`` turns JAX's asynchronous CPU dispatch off
+(``jax_cpu_enable_async_dispatch=False``, set before the backend starts): the call then runs
+on the calling thread instead of being handed to a worker thread and waited for.
+``--callers N`` runs the timed loop in N Python threads at once (the rows then give the
+aggregate boxes/s of the process): one call uses one core, so this shows what a second
+concurrent caller (e.g. a second refinement) adds on a multi-core CPU.
 
 Refinement rows: wall time of ``refine`` (one job) and ``refine_many`` (``--jobs`` jobs in one
 call) on (a) a hand-set forward model (``F(s, G) = s + (1, 0, 0, 0)`` through ReLUs) and (b) a
@@ -22,6 +30,8 @@ with XLA on this machine.
 Usage (from the repository root, with the package installed or ``PYTHONPATH=.``):
     python benchmarks/bounds_throughput.py                          # full run
     python benchmarks/bounds_throughput.py --batches 64 4096 --repeats 3   # quick
+    python benchmarks/bounds_throughput.py --dispatch sync --no-refine \
+        --out benchmarks/results/bounds_throughput_sync.json
 """
 
 from __future__ import annotations
@@ -30,9 +40,11 @@ import argparse
 import json
 import os
 import platform
+import resource
 import statistics
 import sys
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import jax
@@ -62,19 +74,32 @@ def random_boxes(batch, seed):
     return jnp.asarray(centre - radius), jnp.asarray(centre + radius)
 
 
-def time_rounds(fn, calls: int, repeats: int):
-    """Seconds per call (wall and process CPU) for each round of ``calls`` blocked calls."""
-    wall, cpu = [], []
-    for _ in range(repeats):
-        w0, c0 = time.perf_counter(), time.process_time()
+def time_rounds(fn, calls: int, repeats: int, callers: int = 1):
+    """Per call, for each round of ``calls`` blocked calls in each of ``callers`` threads:
+    wall seconds, process CPU seconds, and the round's voluntary context switches."""
+
+    def loop(_):
         for _ in range(calls):
             jax.block_until_ready(fn())
-        wall.append((time.perf_counter() - w0) / calls)
-        cpu.append((time.process_time() - c0) / calls)
-    return wall, cpu
+
+    wall, cpu, switches = [], [], []
+    with ThreadPoolExecutor(callers) as pool:
+        for _ in range(repeats):
+            s0 = resource.getrusage(resource.RUSAGE_SELF).ru_nvcsw
+            w0, c0 = time.perf_counter(), time.process_time()
+            if callers == 1:
+                loop(0)
+            else:
+                list(pool.map(loop, range(callers)))
+            n = calls * callers
+            wall.append((time.perf_counter() - w0) / n)
+            cpu.append((time.process_time() - c0) / n)
+            switches.append((resource.getrusage(resource.RUSAGE_SELF).ru_nvcsw - s0) / n)
+    return wall, cpu, switches
 
 
-def bench_bounds(arch: str, method: str, batch: int, repeats: int, seed: int) -> dict:
+def bench_bounds(arch: str, method: str, batch: int, repeats: int, seed: int,
+                 callers: int = 1) -> dict:
     layers = random_layers(ARCHS[arch], seed)
     lo, hi = random_boxes(batch, seed + 1)
     public, core = METHODS[method]
@@ -84,10 +109,11 @@ def bench_bounds(arch: str, method: str, batch: int, repeats: int, seed: int) ->
     fn = lambda: public(layers, lo, hi, validate=False)  # noqa: E731
     jax.block_until_ready(fn())  # warm-up (and the jit cache's own compile)
     calls = max(1, min(200, int(2e5 // batch)))
-    wall, cpu = time_rounds(fn, calls, repeats)
+    wall, cpu, switches = time_rounds(fn, calls, repeats, callers)
     return {
         "arch": arch, "method": method, "batch": batch, "compile_s": compile_s,
-        "calls_per_round": calls, "wall_s_per_call": wall, "cpu_s_per_call": cpu,
+        "callers": callers, "calls_per_round": calls, "wall_s_per_call": wall,
+        "cpu_s_per_call": cpu, "context_switches_per_call": statistics.median(switches),
         "boxes_per_s_best": batch / min(wall),
         "boxes_per_s_median": batch / statistics.median(wall),
         "boxes_per_cpu_s_best": batch / min(cpu),
@@ -101,10 +127,11 @@ def bench_floor(batch: int, repeats: int, seed: int) -> dict:
     lo_np, hi_np = np.asarray(lo), np.asarray(hi)
     calls = max(1, min(500, int(5e5 // batch)))
     jax.block_until_ready(first_step(lo, hi))
-    xla, _ = time_rounds(lambda: first_step(lo, hi), calls, repeats)
-    numpy, _ = time_rounds(lambda: (lo_np + hi_np, hi_np - lo_np), calls, repeats)
+    xla, _, switches = time_rounds(lambda: first_step(lo, hi), calls, repeats)
+    numpy, _, _ = time_rounds(lambda: (lo_np + hi_np, hi_np - lo_np), calls, repeats)
     return {"batch": batch, "xla_s_per_call_best": min(xla), "numpy_s_per_call_best": min(numpy),
-            "xla_ceiling_boxes_per_s": batch / min(xla)}
+            "xla_ceiling_boxes_per_s": batch / min(xla),
+            "xla_context_switches_per_call": statistics.median(switches)}
 
 
 def translation_model():
@@ -198,18 +225,20 @@ def machine_info() -> dict:
         "backend": jax.default_backend(),
         "device": str(getattr(jax.devices()[0], "device_kind", jax.devices()[0])),
         "x64": bool(jax.config.jax_enable_x64),
+        "cpu_async_dispatch": bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
         "load_average_1min_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
     }
 
 
 def bounds_table(rows: list[dict]) -> str:
     lines = ["| net | method | batch | compile (s) | boxes/s (best) | boxes/s (median) "
-             "| boxes per CPU-s |", "|---|---|---:|---:|---:|---:|---:|"]
+             "| boxes per CPU-s | context switches per call |",
+             "|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in rows:
         lines.append(
             f"| {r['arch']} | {r['method']} | {r['batch']} | {r['compile_s']:.2f} "
             f"| {r['boxes_per_s_best']:.3g} | {r['boxes_per_s_median']:.3g} "
-            f"| {r['boxes_per_cpu_s_best']:.3g} |")
+            f"| {r['boxes_per_cpu_s_best']:.3g} | {r['context_switches_per_call']:.1f} |")
     return "\n".join(lines)
 
 
@@ -224,6 +253,20 @@ def refine_table(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def set_dispatch(mode: str) -> None:
+    """Choose JAX's CPU dispatch; it is read when the CPU backend starts, so this must come
+    before the first computation (machine_info() starts it)."""
+    asynchronous = mode == "async"
+    if jax.config.values["jax_cpu_enable_async_dispatch"] == asynchronous:
+        return
+    from jax._src import xla_bridge  # no public way to ask whether the backend has started
+
+    if getattr(xla_bridge, "backends_are_initialized", lambda: False)():
+        raise SystemExit(f"--dispatch {mode}: JAX's CPU backend has already started in this "
+                         "process; run the benchmark in a fresh process")
+    jax.config.update("jax_cpu_enable_async_dispatch", asynchronous)
+
+
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--archs", nargs="+", default=list(ARCHS), choices=list(ARCHS))
@@ -233,23 +276,30 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--jobs", type=int, default=16, help="jobs in the refine_many rows")
     parser.add_argument("--no-refine", action="store_true", help="skip the refinement rows")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--dispatch", choices=("async", "sync"), default="async",
+                        help="JAX's CPU dispatch (async is JAX's default; see the docstring)")
+    parser.add_argument("--callers", type=int, default=1,
+                        help="threads running the throughput loop at once")
     parser.add_argument(
         "--out", type=Path,
         default=Path(__file__).resolve().parent / "results" / "bounds_throughput.json")
     args = parser.parse_args(argv)
-    if args.repeats < 1 or args.jobs < 1 or any(b < 1 for b in args.batches):
-        parser.error("--repeats, --jobs and --batches must be >= 1")
+    if (args.repeats < 1 or args.jobs < 1 or args.callers < 1
+            or any(b < 1 for b in args.batches)):
+        parser.error("--repeats, --jobs, --callers and --batches must be >= 1")
     return args
 
 
 def main(argv=None) -> dict:
     args = parse_args(argv)
+    set_dispatch(args.dispatch)
     info = machine_info()
     rows = []
     for arch in args.archs:
         for method in args.methods:
             for batch in args.batches:
-                rows.append(bench_bounds(arch, method, batch, args.repeats, args.seed))
+                rows.append(bench_bounds(arch, method, batch, args.repeats, args.seed,
+                                         args.callers))
                 print(f"  {arch} {method} {batch}: {rows[-1]['boxes_per_s_best']:.3g} boxes/s",
                       file=sys.stderr, flush=True)
     floor_rows = [bench_floor(batch, args.repeats, args.seed) for batch in args.batches]
@@ -265,12 +315,14 @@ def main(argv=None) -> dict:
     info["load_average_1min_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     table = bounds_table(rows)
     print(f"Bound throughput (float32), {info['backend']} backend, {info['cpu_count']} CPUs, "
-          f"jax {info['jax']}, load average {info['load_average_1min_at_start']:.1f} at start")
+          f"jax {info['jax']}, {args.dispatch} dispatch, {args.callers} caller(s), "
+          f"load average {info['load_average_1min_at_start']:.1f} at start")
     print(table)
     print("\nFloor: IBP's first step alone, (lo + hi, hi - lo) on [B, 12] float32")
     for r in floor_rows:
         print(f"  batch {r['batch']}: jitted {1e6 * r['xla_s_per_call_best']:.1f} us "
-              f"(ceiling {r['xla_ceiling_boxes_per_s']:.3g} boxes/s), "
+              f"(ceiling {r['xla_ceiling_boxes_per_s']:.3g} boxes/s, "
+              f"{r['xla_context_switches_per_call']:.1f} context switches per call), "
               f"NumPy {1e6 * r['numpy_s_per_call_best']:.1f} us")
     rtable = refine_table(refine_rows) if refine_rows else ""
     if rtable:

@@ -24,8 +24,9 @@ x. "first" includes compiling, "warm" is the best of ``--repeats`` later calls.
 
 Floor rows: what a jitted call costs before any layer, for each batch: a jitted function that
 takes IBP's two ``[B, 12]`` inputs and returns their sum and difference (IBP's own first step),
-next to the same two operations in NumPy. The ratio bounds what any IBP formulation can reach
-with XLA on this machine.
+next to the same two operations in NumPy, with the context switches per jitted call: from some
+size on XLA splits such a loop over the CPU's threads, and on a VM the hand-offs can cost more
+than the arithmetic (``ibp`` works on chunks of boxes and avoids the split at batch 4096).
 
 Usage (from the repository root, with the package installed or ``PYTHONPATH=.``):
     python benchmarks/bounds_throughput.py                          # full run

@@ -38,9 +38,7 @@ Usage (from the repository root, with the package installed or ``PYTHONPATH=.``)
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import platform
 import resource
 import statistics
 import sys
@@ -58,6 +56,9 @@ from gara_jax.partition import gara_initial
 from gara_jax.reach import crown, ibp, refine, refine_many
 from gara_jax.reach.crown import _crown_jit
 from gara_jax.reach.ibp import _ibp_jit
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
+from _common import load_average, machine_info, write_result  # noqa: E402
 
 ARCHS = {"12-8-8-4": (8, 8), "12-32-32-4": (32, 32)}
 METHODS = {"ibp": (ibp, _ibp_jit), "crown": (crown, _crown_jit)}
@@ -209,28 +210,6 @@ def bench_refine(name: str, model, method: str, jobs: int, repeats: int,
     return rows
 
 
-def machine_info() -> dict:
-    try:
-        import jaxlib
-
-        jaxlib_version = jaxlib.__version__
-    except (ImportError, AttributeError):
-        jaxlib_version = None
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "python": sys.version.split()[0],
-        "jax": jax.__version__,
-        "jaxlib": jaxlib_version,
-        "backend": jax.default_backend(),
-        "device": str(getattr(jax.devices()[0], "device_kind", jax.devices()[0])),
-        "x64": bool(jax.config.jax_enable_x64),
-        "cpu_async_dispatch": bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
-        "load_average_1min_at_start": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
-    }
-
-
 def bounds_table(rows: list[dict]) -> str:
     lines = ["| net | method | batch | compile (s) | boxes/s (best) | boxes/s (median) "
              "| boxes per CPU-s | context switches per call |",
@@ -313,7 +292,7 @@ def main(argv=None) -> dict:
                                   ("trained 12-8-8-4", params, 1.0)):
             for method in ("ibp", "crown"):
                 refine_rows += bench_refine(name, model, method, args.jobs, args.repeats, x_lo)
-    info["load_average_1min_at_end"] = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    info["load_average_1min_at_end"] = load_average()
     table = bounds_table(rows)
     print(f"Bound throughput (float32), {info['backend']} backend, {info['cpu_count']} CPUs, "
           f"jax {info['jax']}, {args.dispatch} dispatch, {args.callers} caller(s), "
@@ -341,9 +320,7 @@ def main(argv=None) -> dict:
         "table": table,
         "refine_table": rtable,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
-    print(f"wrote {args.out}")
+    write_result(args.out, result)
     return result
 
 

@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import random
 import statistics
 import subprocess
@@ -47,6 +46,9 @@ import numpy as np
 
 import envs
 from envs.reference import NumpyReferenceMaze, ReferenceMaze
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
+from _common import load_average, machine_info, write_result  # noqa: E402
 
 
 def random_actions(seed: jax.Array, t: jax.Array) -> jax.Array:
@@ -135,7 +137,7 @@ def bench_jax(layout: str, batch: int, num_steps: int, repeats: int, seed: int) 
         "episodes_ended": int(np.asarray(ended).sum()),
         # Loops of the compiled program that XLA splits across threads (0 on one core).
         "xla_split_loops": _count_split_loops(compiled),
-        "load_average_1min": _load_average(),
+        "load_average_1min": load_average(),
     }
 
 
@@ -173,7 +175,7 @@ def bench_plain_loop(reference: type, layout: str, num_steps: int, repeats: int,
         "times_s": watch.wall,
         "cpu_times_s": watch.cpu,
         "episodes_ended": ended,
-        "load_average_1min": _load_average(),
+        "load_average_1min": load_average(),
     }
 
 
@@ -203,38 +205,8 @@ def bench_python_jit_loop(layout: str, num_steps: int, repeats: int, seed: int) 
         "times_s": watch.wall,
         "cpu_times_s": watch.cpu,
         "episodes_ended": None,
-        "load_average_1min": _load_average(),
+        "load_average_1min": load_average(),
     }
-
-
-def _load_average() -> float | None:
-    return os.getloadavg()[0] if hasattr(os, "getloadavg") else None
-
-
-def machine_info() -> dict:
-    device = jax.devices()[0]
-    return {
-        "platform": platform.platform(),
-        "processor": platform.processor() or platform.machine(),
-        "cpu_count": os.cpu_count(),
-        "python": sys.version.split()[0],
-        "numpy": np.__version__,
-        "jax": jax.__version__,
-        "jaxlib": _jaxlib_version(),
-        "backend": jax.default_backend(),
-        "device": str(getattr(device, "device_kind", device)),
-        "x64": bool(jax.config.jax_enable_x64),
-        "load_average_1min_at_start": _load_average(),
-    }
-
-
-def _jaxlib_version() -> str | None:
-    try:
-        import jaxlib
-
-        return jaxlib.__version__
-    except (ImportError, AttributeError):
-        return None
 
 
 def summarise(row: dict, num_steps_total: int, baseline: float | None) -> dict:
@@ -388,7 +360,7 @@ def main(argv=None) -> dict:
         summarise(row, row["batch"] * row["steps_per_env"], baseline)
     rows = plain_rows + rows
 
-    info["load_average_1min_at_end"] = _load_average()
+    info["load_average_1min_at_end"] = load_average()
     table = markdown_table(rows)
     print(
         f"Maze env throughput ({args.env}), {info['backend']} backend, {info['cpu_count']} CPUs, "
@@ -411,9 +383,7 @@ def main(argv=None) -> dict:
         "results": rows,
         "table": table,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
-    print(f"wrote {args.out}")
+    write_result(args.out, result)
     return result
 
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import os
+import sys
 import time
 from pathlib import Path
 
@@ -30,6 +30,9 @@ import jax.numpy as jnp
 
 from gara_jax.agents.td3 import Batch, make_td3
 from gara_jax.algorithms import HiroConfig
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
+from _common import write_result  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "td3_update_cost.json"
 DIM = 4  # U-maze state and relative goal
@@ -103,9 +106,7 @@ def main(argv=None) -> dict:
           f"({flops / 1e9:.2f} GFLOP, {flops / critic_s / 1e9:.0f} GFLOP/s), actor step "
           f"{1e3 * actor_s:.1f} ms, mean per high-level update "
           f"{1e3 * result['mean_update_s_with_policy_delay']:.1f} ms")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2))
-    print(f"wrote {os.path.relpath(args.out)}")
+    write_result(args.out, result)
     return result
 
 

@@ -129,6 +129,17 @@ def prepare(layers, lo, hi, validate: bool):
     return layers, lo, hi, batch
 
 
+def bounds_call(core, layers, lo, hi, validate: bool):
+    """The public bound functions' body: check and flatten the boxes, run the jitted ``core``
+    on ``[B, in]``, restore the caller's batch shape on ``(out_lo, out_hi)``."""
+    layers, lo, hi, batch = prepare(layers, lo, hi, validate)
+    out_lo, out_hi = core(layers, lo, hi)
+    if len(batch) != 1:
+        n_out = layers[-1][0].shape[1]
+        out_lo, out_hi = out_lo.reshape(batch + (n_out,)), out_hi.reshape(batch + (n_out,))
+    return out_lo, out_hi
+
+
 def chunked(fn, layers, lo, hi, size):
     """``fn(layers, lo, hi)`` on chunks of ``size`` boxes (a sequential loop; padded)."""
     n = lo.shape[0]

@@ -31,7 +31,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from gara_jax.reach._layers import TunedJit, chunked, prepare
+from gara_jax.reach._layers import TunedJit, bounds_call, chunked
 
 
 def relu_relaxation(lower, upper):
@@ -196,9 +196,4 @@ def crown(layers, lo, hi, *, validate: bool = True):
         >>> [round(v, 6) for v in (lo.item(), hi.item())]  # sound; IBP gives [-1, 2] here
         [-2.0, 2.0]
     """
-    layers, lo, hi, batch = prepare(layers, lo, hi, validate)
-    out_lo, out_hi = _crown_jit(layers, lo, hi)
-    if len(batch) != 1:
-        n_out = layers[-1][0].shape[1]
-        out_lo, out_hi = out_lo.reshape(batch + (n_out,)), out_hi.reshape(batch + (n_out,))
-    return out_lo, out_hi
+    return bounds_call(_crown_jit, layers, lo, hi, validate)

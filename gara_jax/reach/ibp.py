@@ -5,7 +5,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-from gara_jax.reach._layers import chunked, prepare
+from gara_jax.reach._layers import bounds_call, chunked
 
 # Boxes per chunk of the sequential loop over large batches (keeps the [chunk, width]
 # intermediates in cache); measured best of 256..2048 in benchmarks/bounds_throughput.py.
@@ -65,9 +65,4 @@ def ibp(layers, lo, hi, *, validate: bool = True):
         >>> lo.tolist(), hi.tolist()
         ([0.0], [3.0])
     """
-    layers, lo, hi, batch = prepare(layers, lo, hi, validate)
-    out_lo, out_hi = _ibp_jit(layers, lo, hi)
-    if len(batch) != 1:
-        n_out = layers[-1][0].shape[1]
-        out_lo, out_hi = out_lo.reshape(batch + (n_out,)), out_hi.reshape(batch + (n_out,))
-    return out_lo, out_hi
+    return bounds_call(_ibp_jit, layers, lo, hi, validate)

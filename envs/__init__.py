@@ -22,6 +22,10 @@ from envs.maze import (
 )
 
 
+#: Every name :func:`make` accepts (the kinematic layouts; other simulators add theirs).
+ENV_NAMES = tuple(LAYOUTS)
+
+
 def make(name: str, **overrides) -> tuple[Maze, EnvParams]:
     """``(env, params)`` for a layout of SPEC.md's table; keyword overrides replace fields.
 
@@ -41,6 +45,7 @@ from envs import gym_adapter as _gym_adapter  # noqa: E402,F401  (registers the 
 __all__ = [
     "GYM_IDS",
     "LAYOUTS",
+    "ENV_NAMES",
     "EnvParams",
     "EnvState",
     "Maze",

@@ -55,6 +55,9 @@ from gara_jax.algorithms.base import Algorithm
 from gara_jax.networks import mlp_layers
 
 REFINE_METHODS = ("crown", "ibp")
+#: Environments with the U-maze's geometry and (x, y, vx, vy) observations, on which SPEC.md
+#: section 2's partitions apply: the kinematic maze and the rigid-body one.
+U_MAZE_ENVS = ("u_maze", "point_u_maze")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -183,8 +186,8 @@ def _positive_int(cfg, *names):
 
 
 def _validate_common(cfg):
-    if cfg.env not in envs.LAYOUTS:
-        raise ValueError(f"env: unknown layout {cfg.env!r}; valid: {tuple(envs.LAYOUTS)}")
+    if cfg.env not in envs.ENV_NAMES:
+        raise ValueError(f"env: unknown environment {cfg.env!r}; valid: {envs.ENV_NAMES}")
     _positive_int(cfg, "k", "steps_per_epoch", "eval_episodes", "max_goals")
     if not isinstance(cfg.low, DQNConfig):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
@@ -264,10 +267,10 @@ def initial_partition(config):
     """The partition an agent starts from: SPEC.md section 2's handcrafted or GARA boxes."""
     from gara_jax import partition as part
 
-    if config.env != "u_maze":
+    if config.env not in U_MAZE_ENVS:
         raise ValueError(
-            f"env: the handcrafted and initial GARA partitions are defined for 'u_maze' only, "
-            f"got {config.env!r}")
+            f"env: the handcrafted and initial GARA partitions are defined for the U-maze "
+            f"environments {U_MAZE_ENVS} only, got {config.env!r}")
     if isinstance(config, GaraConfig):
         return part.gara_initial(max_goals=config.max_goals)
     return part.handcrafted(max_goals=config.max_goals)

@@ -105,8 +105,8 @@ class HiroConfig:
     relabel_temperature: float = 1.0  # Boltzmann temperature of the low level's Q-values
 
     def __post_init__(self):
-        if self.env not in envs.LAYOUTS:
-            raise ValueError(f"env: unknown layout {self.env!r}; valid: {list(envs.LAYOUTS)}")
+        if self.env not in envs.ENV_NAMES:
+            raise ValueError(f"env: unknown environment {self.env!r}; valid: {envs.ENV_NAMES}")
         for name in ("k", "steps_per_epoch", "eval_episodes"):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:

@@ -56,6 +56,121 @@ def steps_to(env_steps, success, threshold: float):
     return None if hit.size == 0 else int(np.asarray(env_steps)[0, hit[0]])
 
 
+# ----------------------------------------------------------------------------------------------
+# The paper's metric: success of the training episodes (SPEC.md sections 3.1 and 4)
+# ----------------------------------------------------------------------------------------------
+
+
+def moving_average(values, window: int = 30):
+    """Trailing moving average along the last axis: entry ``i`` averages ``values[i-w+1 .. i]``
+    (fewer at the start), as a plotted learning curve does.
+
+    Example:
+        >>> moving_average(np.array([0.0, 1.0, 1.0, 0.0]), window=2).tolist()
+        [0.0, 0.5, 1.0, 0.5]
+    """
+    values = np.asarray(values, dtype=np.float64)
+    if window < 1:
+        raise ValueError(f"window: must be >= 1, got {window}")
+    csum = np.cumsum(values, axis=-1)
+    shifted = np.concatenate([np.zeros(values.shape[:-1] + (window,)), csum], axis=-1)
+    n = np.minimum(np.arange(1, values.shape[-1] + 1), window)
+    return (csum - shifted[..., : values.shape[-1]]) / n
+
+
+def episode_success_curve(episodes, n_episodes: int = 400, window: int = 30):
+    """The paper's curve by episode index: ``(mean [E], ci95 [E])`` over seeds.
+
+    Each seed's per-episode success (its first ``n_episodes`` training episodes; the
+    reference's run is 400 episodes) is smoothed by a ``window``-episode moving average, then
+    averaged over seeds with a 95% t-interval. ``E`` is ``n_episodes`` capped at the fewest
+    episodes any seed has. ``episodes`` is :attr:`gara_jax.train.TrainResult.episodes`.
+
+    Example:
+        >>> eps = {"success": [np.array([0, 1, 1]), np.array([0, 0, 1, 1])]}
+        >>> mean, ci = episode_success_curve(eps, n_episodes=400, window=2)
+        >>> mean.tolist()
+        [0.0, 0.25, 0.75]
+    """
+    success = episodes["success"]
+    n = min([n_episodes] + [len(s) for s in success])
+    per_seed = np.stack([moving_average(np.asarray(s[:n], np.float64), window)
+                         for s in success])
+    return mean_ci95(per_seed, axis=0)
+
+
+def step_success_curve(episodes, grid, window_steps: int = 9000):
+    """Training-episode success against environment steps: ``(mean [T], ci95 [T])`` over seeds.
+
+    At each step ``g`` of ``grid`` a seed's value is the success rate of its episodes that
+    ended in ``(g - window_steps, g]`` (``nan`` where none did; such seeds are left out of the
+    mean at that point).
+
+    Example:
+        >>> eps = {"success": [np.array([0, 1])], "end_step": [np.array([100, 250])]}
+        >>> step_success_curve(eps, [100, 300], window_steps=250)[0].tolist()
+        [0.0, 0.5]
+    """
+    grid = np.asarray(grid)
+    rows = []
+    for success, end in zip(episodes["success"], episodes["end_step"], strict=True):
+        inside = (end[None, :] > grid[:, None] - window_steps) & (end[None, :] <= grid[:, None])
+        count = inside.sum(axis=1)
+        hits = (inside & (np.asarray(success)[None, :] > 0)).sum(axis=1)
+        rows.append(np.where(count > 0, hits / np.maximum(count, 1), np.nan))
+    rows = np.stack(rows)
+    mean = np.full(len(grid), np.nan)
+    ci = np.full(len(grid), np.nan)
+    for t in range(len(grid)):
+        ok = ~np.isnan(rows[:, t])
+        if ok.any():
+            mean[t], ci[t] = mean_ci95(rows[ok, t])
+    return mean, ci
+
+
+def per_seed_episode_success(episodes, first: int, last: int):
+    """Each seed's success rate over its episodes ``first .. last - 1`` (``nan`` if it has
+    none there).
+
+    Example:
+        >>> per_seed_episode_success({"success": [np.array([0, 1, 1, 1])]}, 1, 3).tolist()
+        [1.0]
+    """
+    return np.array([np.mean(s[first:last]) if len(s) > first else np.nan
+                     for s in episodes["success"]], dtype=np.float64)
+
+
+def per_seed_success_after(episodes, step: int):
+    """Each seed's success rate over the training episodes that ended after ``step``
+    environment steps (``nan`` if none did).
+
+    Example:
+        >>> eps = {"success": [np.array([0, 1, 1])], "end_step": [np.array([10, 20, 30])]}
+        >>> per_seed_success_after(eps, 15).tolist()
+        [1.0]
+    """
+    out = []
+    for success, end in zip(episodes["success"], episodes["end_step"], strict=True):
+        late = np.asarray(end) > step
+        out.append(np.mean(np.asarray(success)[late]) if late.any() else np.nan)
+    return np.array(out, dtype=np.float64)
+
+
+def ci_summary(values) -> dict:
+    """``{"mean", "ci95", "n"}`` of per-seed values, ignoring ``nan`` (seeds without data).
+
+    Example:
+        >>> ci_summary([1.0, 0.0, float("nan")])["n"]
+        2
+    """
+    values = np.asarray(values, dtype=np.float64)
+    values = values[~np.isnan(values)]
+    if values.size == 0:
+        return {"mean": None, "ci95": None, "n": 0}
+    mean, half = mean_ci95(values)
+    return {"mean": float(mean), "ci95": float(half), "n": int(values.size)}
+
+
 def summarize(metrics: Mapping[str, np.ndarray], wall_time_s: float) -> dict:
     """The per-method summary written to ``summary.json``.
 

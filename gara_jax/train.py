@@ -55,7 +55,9 @@ class EpochOutput(NamedTuple):
     """What :func:`train_epochs` yields after each epoch (host-side values).
 
     ``metrics`` maps names to ``[n_seeds]`` arrays; ``snapshots`` lists, per seed, the partition
-    snapshots taken at this epoch (empty lists when the partition did not change).
+    snapshots taken at this epoch (empty lists when the partition did not change);
+    ``episodes`` the training episodes that ended in this epoch (:func:`episodes_of_epoch`),
+    ``None`` for an algorithm without an ``episode_log``.
     """
 
     epoch: int
@@ -65,6 +67,7 @@ class EpochOutput(NamedTuple):
     host_info: dict | None
     snapshots: list
     epoch_s: float
+    episodes: dict | None = None
 
 
 @dataclasses.dataclass
@@ -79,6 +82,10 @@ class TrainResult:
             ``train_success``, ``eval_success``, ``episode_return``, ``n_goals``).
         snapshots: per seed, the list of :class:`PartitionSnapshot` (step 0 and every epoch
             after which the partition changed); empty lists for algorithms without one.
+        episodes: every training episode, per seed: ``{"success", "length", "end_step"}``,
+            each a list of ``n_seeds`` 1-D NumPy arrays in episode order (success 0/1, length in
+            steps, the seed's environment-step count when it ended); ``None`` for algorithms
+            that do not log episodes. :mod:`gara_jax.results` turns it into the paper's curve.
         wall_time_s: wall time of the whole call (compilation included).
         first_epoch_s: wall time of the first epoch run (includes compilation).
         host_time_s: total time spent in ``host_update`` (GARA's refinement).
@@ -96,6 +103,26 @@ class TrainResult:
     host_time_s: float
     host_info: list
     final: LoopState
+    episodes: dict | None = None
+
+
+EPISODE_FIELDS = ("success", "length", "end_step")
+
+
+def episodes_of_epoch(log) -> dict:
+    """Per-seed episode arrays from an epoch's ``episode_log`` (``[n_seeds, steps]`` arrays).
+
+    Example:
+        >>> import numpy as np
+        >>> log = dict(ended=np.array([[False, True, True]]), success=np.array([[0, 1, 0]]),
+        ...            length=np.array([[0, 2, 1]]), end_step=np.array([[0, 2, 3]]))
+        >>> eps = episodes_of_epoch(log)
+        >>> eps["success"][0].tolist(), eps["end_step"][0].tolist()
+        ([1, 0], [2, 3])
+    """
+    ended = np.asarray(log["ended"], bool)
+    return {name: [np.asarray(log[name])[i][ended[i]].astype(np.int32)
+                   for i in range(len(ended))] for name in EPISODE_FIELDS}
 
 
 def n_epochs_for(config, total_steps: int) -> int:
@@ -228,7 +255,10 @@ def train_epochs(config, seeds, total_steps: int, *,
     for epoch in range(loop.epoch, n_epochs):
         t0 = time.perf_counter()
         states, metrics = run(loop.states, loop.keys, epoch)
-        metrics = {k: np.asarray(v) for k, v in jax.device_get(metrics).items()}
+        metrics = jax.device_get(metrics)
+        log = metrics.pop("episode_log", None)
+        episodes = None if log is None else episodes_of_epoch(log)
+        metrics = {k: np.asarray(v) for k, v in metrics.items()}
         info = None
         snaps = [[] for _ in loop.seeds]
         if alg.host_update is not None:
@@ -240,7 +270,8 @@ def train_epochs(config, seeds, total_steps: int, *,
                     snaps[i].append(current[i])
         jax.block_until_ready(states)
         loop = LoopState(states=states, keys=loop.keys, epoch=epoch + 1, seeds=loop.seeds)
-        yield EpochOutput(epoch, n_epochs, loop, metrics, info, snaps, time.perf_counter() - t0)
+        yield EpochOutput(epoch, n_epochs, loop, metrics, info, snaps, time.perf_counter() - t0,
+                          episodes)
 
 
 def train_many(config, seeds, total_steps: int, *,
@@ -281,8 +312,15 @@ def train_many(config, seeds, total_steps: int, *,
     snapshots = [[] for _ in seeds] if start is None else [
         [s] if loop.epoch == 0 else [] for s in start]
     rows, host_info, first_epoch_s, host_s = [], [], None, 0.0
+    episodes = None
     for out in train_epochs(config, seeds, total_steps, init_state=loop):
         rows.append(out.metrics)
+        if out.episodes is not None:
+            episodes = {name: [[] for _ in seeds] for name in EPISODE_FIELDS} if (
+                episodes is None) else episodes
+            for name in EPISODE_FIELDS:
+                for i, values in enumerate(out.episodes[name]):
+                    episodes[name][i].append(values)
         host_info.append(out.host_info)
         if out.host_info is not None:
             host_s += float(out.host_info.get("host_s", 0.0))
@@ -295,10 +333,13 @@ def train_many(config, seeds, total_steps: int, *,
         if callback is not None and callback(out):
             break
     metrics = {k: np.stack([r[k] for r in rows], axis=1) for k in rows[0]} if rows else {}
+    if episodes is not None:
+        episodes = {name: [np.concatenate(parts) for parts in per_seed]
+                    for name, per_seed in episodes.items()}
     return TrainResult(config=config, algorithm=alg.name, seeds=seeds, metrics=metrics,
                        snapshots=snapshots, wall_time_s=time.perf_counter() - t_start,
                        first_epoch_s=first_epoch_s or 0.0, host_time_s=host_s,
-                       host_info=host_info, final=loop)
+                       host_info=host_info, final=loop, episodes=episodes)
 
 
 def make_train(config, total_steps: int = 120_000):

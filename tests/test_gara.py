@@ -11,7 +11,8 @@ import pytest
 import envs
 from gara_jax.agents.dqn import DQNConfig, Transition, make_dqn
 from gara_jax.algorithms import GaraConfig, HandcraftedConfig, make_algorithm
-from gara_jax.algorithms.gara import _apply_split, intrinsic_reward
+from gara_jax.algorithms.gara import intrinsic_reward
+from gara_jax.algorithms.refinement import apply_split as _apply_split
 
 
 def test_intrinsic_reward_once_per_option_closed_box():
@@ -161,7 +162,7 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (HandcraftedConfig, "k", 0), (HandcraftedConfig, "steps_per_epoch", 2.5),
     (HandcraftedConfig, "planning", "yes"), (HandcraftedConfig, "low", None),
     (HandcraftedConfig, "goal_membership", "open"), (HandcraftedConfig, "eval_epsilon_low", 2.0),
-    (GaraConfig, "hindsight_memory", 1)])
+    (GaraConfig, "hindsight_memory", 1), (GaraConfig, "q_columns", "rows")])
 def test_config_validation_names_the_field(cls, field, value):
     with pytest.raises(ValueError, match=field):
         cls(**{field: value})

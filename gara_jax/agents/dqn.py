@@ -27,9 +27,9 @@ class DQNConfig:
     learning_rate: float = 0.01
     gamma: float = 0.95
     batch_size: int = 32
-    buffer_size: int = 10_000
+    buffer_size: int = 100_000  # the reference's final maze version (10,000 in its results one)
     learning_starts: int = 3_000  # transitions in the buffer before the first update
-    target_update_every: int = 200  # environment steps between target-network copies
+    target_update_every: int = 20  # environment steps between target-network copies
     td_target_clip: float = 1.0  # TD targets clipped to [-clip, clip]
     epsilon_start: float = 1.0
     epsilon_decay: float = 0.99995  # multiplied into epsilon after every step
@@ -94,7 +94,8 @@ class DQN(NamedTuple):
 
     ``observe`` is what a training loop calls each environment step: it stores the transition,
     takes one gradient step once ``learning_starts`` transitions are stored, copies the target
-    network every ``target_update_every`` steps and decays epsilon.
+    network every ``target_update_every`` steps and decays epsilon. ``append_relabelled`` is
+    hindsight relabelling of the whole replay (see :func:`append_relabelled`).
     """
 
     init: callable
@@ -102,6 +103,63 @@ class DQN(NamedTuple):
     act: callable
     observe: callable
     update: callable
+    append_relabelled: callable
+
+
+def stored_in_age_order(buffer_state):
+    """``(rows [N], valid [N])`` of a flashbax item buffer: slot indices oldest first.
+
+    ``N`` is the capacity; ``valid`` marks the slots that hold a transition.
+
+    Example:
+        >>> import flashbax as fbx, jax.numpy as jnp
+        >>> b = fbx.make_item_buffer(max_length=4, min_length=1, sample_batch_size=1,
+        ...                          add_batches=False)
+        >>> s = b.init(jnp.zeros(()))
+        >>> for v in range(5):
+        ...     s = b.add(s, jnp.float32(v))
+        >>> rows, valid = stored_in_age_order(s)
+        >>> rows.tolist(), valid.tolist()
+        ([1, 2, 3, 0], [True, True, True, True])
+    """
+    capacity = jax.tree.leaves(buffer_state.experience)[0].shape[1]
+    start = jnp.where(buffer_state.is_full, buffer_state.current_index, 0)
+    n = jnp.where(buffer_state.is_full, capacity, buffer_state.current_index)
+    age = jnp.arange(capacity)
+    return (start + age) % capacity, age < n
+
+
+def append_relabelled(buffer_state, relabel, where=True):
+    """Append a relabelled copy of every stored transition (oldest first), where ``where``.
+
+    ``relabel(transitions) -> transitions`` maps the stored batch (leading axis = capacity) to
+    its copies. The buffer is a ring: once it is full the copies overwrite the oldest entries,
+    so a full buffer ends up holding only copies (the reference's behaviour after a split,
+    SPEC.md section 3.6). Pure and jittable; ``where`` may be traced.
+
+    Example:
+        >>> import flashbax as fbx, jax.numpy as jnp
+        >>> b = fbx.make_item_buffer(max_length=4, min_length=1, sample_batch_size=1,
+        ...                          add_batches=False)
+        >>> s = b.add(b.init(jnp.zeros(())), jnp.float32(5))
+        >>> s = append_relabelled(s, lambda t: t + 1)
+        >>> s.experience[0].tolist(), int(s.current_index)
+        ([5.0, 6.0, 0.0, 0.0], 2)
+    """
+    capacity = jax.tree.leaves(buffer_state.experience)[0].shape[1]
+    rows, valid = stored_in_age_order(buffer_state)
+    n = jnp.sum(valid)
+    copies = relabel(jax.tree.map(lambda e: e[0, rows], buffer_state.experience))
+    dest = jnp.where(valid & where, (buffer_state.current_index + jnp.arange(capacity))
+                     % capacity, capacity)  # capacity: out of range, dropped
+    experience = jax.tree.map(lambda e, c: e.at[0, dest].set(c.astype(e.dtype), mode="drop"),
+                              buffer_state.experience, copies)
+    added = jnp.where(where, n, 0)
+    return buffer_state.replace(
+        experience=experience,
+        current_index=((buffer_state.current_index + added) % capacity).astype(
+            buffer_state.current_index.dtype),
+        is_full=buffer_state.is_full | (buffer_state.current_index + added >= capacity))
 
 
 def make_dqn(config: DQNConfig, input_dim: int, num_actions: int) -> DQN:
@@ -185,4 +243,8 @@ def make_dqn(config: DQNConfig, input_dim: int, num_actions: int) -> DQN:
         info = {"loss": loss, "updated": ready}
         return state.replace(target_params=target, epsilon=epsilon), info
 
-    return DQN(init=init, q_values=q_values, act=act, observe=observe, update=update)
+    def relabel_replay(state: DQNState, relabel, where=True) -> DQNState:
+        return state.replace(buffer=append_relabelled(state.buffer, relabel, where))
+
+    return DQN(init=init, q_values=q_values, act=act, observe=observe, update=update,
+               append_relabelled=relabel_replay)

@@ -1,21 +1,30 @@
-"""GARA's forward model ``F_k(s, G) -> s_{t+k}`` and the high-level memory it learns from.
+"""GARA's forward model ``F_k(s, G) -> s'`` and the high-level memory it learns from.
 
 **High-level memory.** A fixed-capacity ring buffer (a pytree, so it vmaps over seeds) of
-options: the state where each option started, the state where it ended, the *bounds* of the
-goal box it targeted, the environment reward it collected, its length and the environment step
-at which it ended. It stores states and boxes, never goal indices: a split changes what an index
-means, so goals are derived from the stored states (``locate``) and the stored target bounds
-whenever they are needed (DESIGN.md), and nothing has to be rewritten after a refinement.
+experience rows: a start state, an end state, the *bounds* of the goal box targeted, the
+environment reward, a length (the environment steps the row counts towards the trigger), the
+environment step at which it was stored, the episode it belongs to, and whether it is forward-
+model data (``data``) or only counts. What a row holds depends on GARA's ``memory`` option:
+whole options (start and end of each option, length ``k``), or the reference's sliding windows
+(one row per environment step, ``s_{t-k} -> s_{t+1}``, length 1, plus a count-only row per
+option start; SPEC.md section 3.4). It stores states and boxes, never goal indices: a split
+changes what an index means, so goals are derived from the stored states (``locate``) and the
+stored target bounds whenever they are needed (DESIGN.md), and nothing has to be rewritten
+after a refinement.
 
 **Forward model.** ``MLP(hidden=(8, 8), out=D)`` on ``s ‖ G.lo ‖ G.hi``, Adam (lr 0.005), mean
-squared error, minibatches of 32 (SPEC.md section 3; the reference fitted a Keras model with its
-default batch size). :func:`make_forward_model` returns a ``fit`` that trains J models at once
-(``vmap`` over jobs, each on its own zero-padded, masked dataset) until each one's loss has
-stabilised: after every epoch (one shuffled pass over the job's data) the full-data MSE is
-measured, and a job stops once it fell by less than ``stable_decrease`` (0.01, the SPEC's
-"decrease below 0.01") over the last epoch, after at least ``min_epochs``. A job that has not
-stabilised after ``max_epochs`` is reported as not stable, and GARA skips its analysis this
-time. The whole loop is one jitted ``lax.while_loop``; jobs that stopped are frozen.
+squared error, minibatches of 32 (SPEC.md section 3.5). Two ways to train it:
+
+- :func:`make_forward_model` ``fit``: one fresh model per analysis job, J models at once
+  (``vmap`` over jobs, each on its own zero-padded, masked dataset) until each one's loss has
+  stabilised: after every epoch (one shuffled pass over the job's data) the full-data MSE is
+  measured, and a job stops once it fell by less than ``stable_decrease`` over the last epoch,
+  after at least ``min_epochs``. A job that has not stabilised after ``max_epochs`` is reported
+  as not stable. One jitted ``lax.while_loop``; jobs that stopped are frozen.
+- :func:`make_forward_model` ``shared_updates``: the reference's way, one network per seed that
+  is never re-initialised; each update is one gradient step on a random sample of at most
+  ``batch_size`` of a pair's data rows, followed by the MSE on a fresh sample (the record the
+  reference's stability rule reads).
 """
 
 from __future__ import annotations
@@ -77,20 +86,21 @@ class ForwardModelConfig:
 
 @struct.dataclass
 class HighMemory:
-    """Ring buffer of options, capacity ``C``; rows ``[0, size)`` hold data.
+    """Ring buffer of experience rows, capacity ``C``; rows ``[0, size)`` are filled.
 
     Every array has ``C + 1`` rows: the last one is scratch, written when nothing is to be
     stored, so a push never has to read the row it replaces (a conditional write inside a
     vmapped scan is otherwise a read-modify-write of the whole row on every step).
 
     Attributes:
-        start, end: ``[C + 1, D]`` states where the option started and ended.
-        target_lo, target_hi: ``[C + 1, D]`` bounds of the goal box it targeted.
-        reward: ``[C + 1]`` environment reward collected during the option.
-        length: ``[C + 1]`` environment steps the option lasted (``k``, less if the episode
-            ended).
-        step: ``[C + 1]`` the agent's environment-step counter when the option ended.
-        ptr: next row to write; size: rows holding data.
+        start, end: ``[C + 1, D]`` start and end states.
+        target_lo, target_hi: ``[C + 1, D]`` bounds of the goal box targeted.
+        reward: ``[C + 1]`` environment reward collected.
+        length: ``[C + 1]`` environment steps the row counts for the trigger.
+        step: ``[C + 1]`` the agent's environment-step counter when the row was stored.
+        episode: ``[C + 1]`` the agent's episode counter when the row was stored.
+        data: ``[C + 1]`` the row is forward-model data (else it only counts).
+        ptr: next row to write; size: rows filled.
     """
 
     start: jax.Array
@@ -100,6 +110,8 @@ class HighMemory:
     reward: jax.Array
     length: jax.Array
     step: jax.Array
+    episode: jax.Array
+    data: jax.Array
     ptr: jax.Array
     size: jax.Array
 
@@ -120,12 +132,14 @@ def init_memory(capacity: int, state_dim: int) -> HighMemory:
                       target_hi=rows(state_dim), reward=rows(),
                       length=jnp.zeros((capacity + 1,), jnp.int32),
                       step=jnp.zeros((capacity + 1,), jnp.int32),
+                      episode=jnp.zeros((capacity + 1,), jnp.int32),
+                      data=jnp.zeros((capacity + 1,), bool),
                       ptr=jnp.int32(0), size=jnp.int32(0))
 
 
 def push_memory(memory: HighMemory, start, end, target_lo, target_hi, reward, length, step,
-                where=True) -> HighMemory:
-    """Store one option, only ``where`` it is true (else the scratch row is written, so it
+                where=True, episode=0, data=True) -> HighMemory:
+    """Store one row, only ``where`` it is true (else the scratch row is written, so it
     costs the same either way inside a vmapped scan); the oldest row is overwritten once full.
 
     Example:
@@ -148,6 +162,8 @@ def push_memory(memory: HighMemory, start, end, target_lo, target_hi, reward, le
         reward=put(memory.reward, reward),
         length=put(memory.length, length),
         step=put(memory.step, step),
+        episode=put(memory.episode, episode),
+        data=put(memory.data, data),
         ptr=jnp.where(where, (memory.ptr + 1) % capacity, memory.ptr).astype(jnp.int32),
         size=jnp.where(where, jnp.minimum(memory.size + 1, capacity), memory.size).astype(
             jnp.int32),
@@ -172,12 +188,13 @@ def match_boxes(lo, hi, boxes_lo, boxes_hi, n_boxes) -> jax.Array:
 
 
 def pair_experience(start_goal, target_goal, memory: HighMemory, since_step, max_goals: int):
-    """Per goal pair: env steps of experience held in memory, and whether it was explored lately.
+    """Per goal pair: experience held in memory (summed ``length``), and whether it was explored
+    lately (a row stored after ``since_step``).
 
     Args:
         start_goal, target_goal: ``[C + 1]`` goal indices of each stored option (from ``locate`` on
             ``memory.start`` and :func:`match_boxes` on the target bounds; -1 for none).
-        since_step: options that ended after this env step count as recently explored.
+        since_step: rows stored after this env step count as recently explored.
 
     Returns:
         ``(steps [G, G] int32, recent [G, G] bool)``.
@@ -212,11 +229,33 @@ class ForwardModel(NamedTuple):
     - ``apply(params, inputs) -> predicted s_{t+k}`` (one job's parameters),
     - ``fit(params, inputs [J, N, 3D], targets [J, N, D], mask [J, N], keys [J]) -> FitResult``,
       jitted; ``N`` must be a multiple of the batch size (pad with :func:`pad_jobs`).
+    - ``init_optimizer(params) -> opt_state`` (one model's Adam state),
+    - ``shared_updates(params, opt_state, inputs [N, 3D], targets [N, D], data [N],
+      start_goal [N], target_goal [N], pairs [U, 2], live [U], keys [U]) -> (params, opt_state,
+      mse [U])``: ``U`` incremental updates of one shared model, update ``u`` on the data rows
+      of the goal pair ``pairs[u]``; not jitted (callers ``vmap``/``jit`` it over seeds).
     """
 
     init: callable
     apply: callable
     fit: callable
+    init_optimizer: callable
+    shared_updates: callable
+
+
+def sample_rows(key, rows, size: int):
+    """Indices of ``size`` distinct rows drawn uniformly among ``rows`` (a bool mask), and a mask
+    of which draws are real (fewer than ``size`` rows: all of them, the rest masked).
+
+    Example:
+        >>> import jax, jax.numpy as jnp
+        >>> idx, ok = sample_rows(jax.random.key(0), jnp.array([False, True, True, False]), 3)
+        >>> sorted(idx[ok].tolist()), int(ok.sum())
+        ([1, 2], 2)
+    """
+    scores = jnp.where(rows, jax.random.uniform(key, rows.shape), -1.0)
+    top, idx = jax.lax.top_k(scores, min(size, rows.shape[0]))
+    return idx, top >= 0.0
 
 
 def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardModel:
@@ -292,7 +331,30 @@ def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardMod
         return FitResult(out["params"], out["loss"], out["epochs"], out["stable"])
 
     fit = jax.jit(jax.vmap(fit_one))
-    return ForwardModel(init=init, apply=apply, fit=fit)
+
+    def shared_updates(params, opt_state, x, y, data, start_goal, target_goal, pairs, live, keys):
+        """The reference's incremental training of one shared model (SPEC.md section 3.5)."""
+
+        def one(carry, inp):
+            params, opt_state = carry
+            pair, live_u, key = inp
+            rows_u = data & (start_goal == pair[0]) & (target_goal == pair[1])
+            k_fit, k_eval = jax.random.split(key)
+            idx, ok = sample_rows(k_fit, rows_u, batch)
+            grads = jax.grad(masked_mse)(params, x[idx], y[idx], ok)
+            updates, new_opt = optimizer.update(grads, opt_state, params)
+            new_params = optax.apply_updates(params, updates)
+            go = live_u & jnp.any(ok)
+            params, opt_state = jax.tree.map(lambda a, b: jnp.where(go, a, b),
+                                             (new_params, new_opt), (params, opt_state))
+            idx, ok = sample_rows(k_eval, rows_u, batch)
+            return (params, opt_state), masked_mse(params, x[idx], y[idx], ok)
+
+        (params, opt_state), mse = jax.lax.scan(one, (params, opt_state), (pairs, live, keys))
+        return params, opt_state, mse
+
+    return ForwardModel(init=init, apply=apply, fit=fit, init_optimizer=optimizer.init,
+                        shared_updates=shared_updates)
 
 
 def pad_jobs(datasets, batch_size: int, min_rows: int = 256, max_rows: int | None = None):

@@ -20,8 +20,9 @@ Choices, after the reference implementation (documented because the SPEC leaves 
   ``[1.5, 3] x [0, 2]``), so excluding it would make the task unsolvable there. Pairs marked
   unreachable are not masked in the Q-learning variant (the reference only zeroes their
   Q-value when it splits), and are never planner edges (the reference's "unsafe" list).
-- Ties between maximal Q-values are broken uniformly at random (the reference's ``argmax``
-  always took the lowest index, which made a fresh table always pick goal 0).
+- Ties between maximal Q-values are broken uniformly at random by default
+  (``tie_break="random"``); the reference's ``argmax`` always took the lowest index
+  (``tie_break="lowest"``), which makes a fresh table always pick goal 0.
 - The Q-learning target is ``r + gamma * (1 - terminated) * max_g' Q[next_goal, g']``, and by
   default (``q_target_entry="reached"``) it updates ``Q[start, next_goal]``, the entry of the
   goal the option actually ended in, as the reference does (it writes its update into
@@ -29,7 +30,8 @@ Choices, after the reference implementation (documented because the SPEC leaves 
   greedy high level chooses goals the low level really gets to. The textbook update of
   ``Q[start, target]`` (``q_target_entry="target"``) locks onto whatever target was chosen
   when the exit was first found, even a target the low level then learns to walk away from;
-  with the SPEC's fast epsilon decay (0.01 after 200 decisions) it rarely recovers. On the
+  with a fast epsilon decay (0.01 after 200 decisions, the reference's results version) it
+  rarely recovers. On the
   U-maze, Handcrafted with the textbook update trained to about 10-20% success, with the
   hindsight update to nearly 100% (10 seeds, 120,000 steps).
 
@@ -63,18 +65,25 @@ class HighLevelConfig:
         gamma: discount per option.
         epsilon_start, epsilon_decrement, epsilon_min: epsilon starts at ``epsilon_start`` and
             loses ``epsilon_decrement`` at every decision, down to ``epsilon_min``.
+            The reference's final maze version decrements 0.0005 (0.01 after ~9,900 steps at
+            ``k = 5``); its results version 0.005.
         planner_sweeps: Bellman-Ford sweeps of the planner's distance vector per env step.
         q_target_entry: ``"reached"`` (update the entry of the goal the option ended in, the
-            reference's hindsight update) or ``"target"`` (the targeted goal's entry).
+            reference's hindsight update), ``"target"`` (the targeted goal's entry), or
+            ``"both"`` (both entries, with the same TD target: the hindsight update, and a
+            failed target's value moves towards the value of where the option really ended).
+        tie_break: greedy ties between equal Q-values: ``"random"`` (uniform) or ``"lowest"``
+            (lowest goal index, the reference's ``argmax``).
     """
 
     alpha: float = 0.01
     gamma: float = 0.99
     epsilon_start: float = 1.0
-    epsilon_decrement: float = 0.005
+    epsilon_decrement: float = 0.0005
     epsilon_min: float = 0.01
     planner_sweeps: int = 1
     q_target_entry: str = "reached"
+    tie_break: str = "random"
 
     def __post_init__(self):
         if not 0.0 < self.alpha <= 1.0:
@@ -89,9 +98,12 @@ class HighLevelConfig:
             raise ValueError(f"epsilon_decrement: must be >= 0, got {self.epsilon_decrement}")
         if int(self.planner_sweeps) != self.planner_sweeps or self.planner_sweeps < 1:
             raise ValueError(f"planner_sweeps: must be an integer >= 1, got {self.planner_sweeps}")
-        if self.q_target_entry not in ("reached", "target"):
+        if self.q_target_entry not in ("reached", "target", "both"):
             raise ValueError(
-                f"q_target_entry: must be 'reached' or 'target', got {self.q_target_entry!r}")
+                "q_target_entry: must be 'reached', 'target' or 'both', got "
+                f"{self.q_target_entry!r}")
+        if self.tie_break not in ("random", "lowest"):
+            raise ValueError(f"tie_break: must be 'random' or 'lowest', got {self.tie_break!r}")
 
 
 @struct.dataclass
@@ -168,8 +180,10 @@ def argmax_random_tie(key, values, mask) -> jax.Array:
     return jnp.argmax(jnp.where(ties, noise, -1.0)).astype(jnp.int32)
 
 
-def q_goal(key, q, current, n_goals, epsilon) -> jax.Array:
+def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random") -> jax.Array:
     """Epsilon-greedy goal from ``Q[current]`` over the valid goals (pass ``epsilon=0`` for greedy).
+
+    Greedy ties are broken uniformly at random, or by the lowest index (``tie_break="lowest"``).
 
     Example:
         >>> import jax, jax.numpy as jnp
@@ -178,7 +192,11 @@ def q_goal(key, q, current, n_goals, epsilon) -> jax.Array:
         2
     """
     k_explore, k_random, k_tie = jax.random.split(key, 3)
-    greedy = argmax_random_tie(k_tie, q[current], valid_goals(n_goals, q.shape[-1]))
+    valid = valid_goals(n_goals, q.shape[-1])
+    if tie_break == "lowest":
+        greedy = jnp.argmax(jnp.where(valid, q[current], -INF)).astype(jnp.int32)
+    else:
+        greedy = argmax_random_tie(k_tie, q[current], valid)
     explore = jax.random.uniform(k_explore) < epsilon
     return jnp.where(explore, random_goal(k_random, n_goals), greedy)
 
@@ -303,9 +321,15 @@ def learn_from_option(config: HighLevelConfig, hs: HighState, outcome: OptionOut
     pair is not marked unreachable) and the exit state (when the option terminated with a
     positive reward).
     """
-    column = outcome.next_goal if config.q_target_entry == "reached" else outcome.target
+    column = outcome.target if config.q_target_entry == "target" else outcome.next_goal
     q = q_update(hs.q, outcome.start, column, outcome.reward, outcome.next_goal,
                  outcome.terminated, n_goals, config.alpha, config.gamma)
+    if config.q_target_entry == "both":
+        # The same TD target (computed from the table before either write) for the target.
+        also = q_update(hs.q, outcome.start, outcome.target, outcome.reward, outcome.next_goal,
+                        outcome.terminated, n_goals, config.alpha, config.gamma)
+        entry = (outcome.start, outcome.target)
+        q = q.at[entry].set(jnp.where(outcome.target != outcome.next_goal, also[entry], q[entry]))
     q = jnp.where(ended, q, hs.q)
     edge = ended & outcome.reached & ~outcome.blocked & (outcome.start != outcome.target)
     succeeded = hs.succeeded.at[outcome.start, outcome.target].set(

@@ -8,7 +8,9 @@ CONTRACT (agreed between the engineers building GARA/Handcrafted and HIRO; keep 
   ``env_steps`` (cumulative env steps after this epoch, int32), ``train_success`` (fraction of the
   episodes that ENDED in this epoch that reached the exit; 0 if none ended), ``episodes_ended``,
   ``episode_return`` (mean env return of the episodes ended this epoch; 0 if none) and ``n_goals``
-  (goals in the partition; 0 for HIRO).
+  (goals in the partition; 0 for HIRO). It may also hold ``episode_log``, a dict of per-step
+  ``[steps_per_epoch]`` arrays (``ended``, ``success``, ``length``, ``end_step``) from which the
+  driver extracts every training episode (:func:`epoch_metrics` builds both).
 - ``evaluate(state, key) -> {"eval_success": f32, "eval_return": f32}``: greedy policies,
   ``config.eval_episodes`` episodes from the start, vmapped inside; jit- and vmap-able.
 - ``host_update(states, epoch) -> (states, info)``: optional host step between epochs, on the
@@ -26,6 +28,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any, NamedTuple
 
+import jax.numpy as jnp
+
 
 class Algorithm(NamedTuple):
     name: str  # "gara", "gara_planning", "handcrafted", "hiro"
@@ -34,3 +38,38 @@ class Algorithm(NamedTuple):
     train_epoch: Callable
     evaluate: Callable
     host_update: Callable | None = None
+
+
+def epoch_metrics(stats, env_steps) -> dict:
+    """The contract's per-episode metrics of an epoch, and its ``episode_log``.
+
+    ``stats`` holds per-step arrays (the ``lax.scan`` outputs): ``episode_ended`` and
+    ``episode_success`` (bools), ``episode_length``, ``episode_return`` and
+    ``episode_end_step`` (the value at the step where an episode ended; ignored elsewhere).
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> stats = dict(episode_ended=jnp.array([False, True, True]),
+        ...              episode_success=jnp.array([False, True, False]),
+        ...              episode_length=jnp.array([1, 2, 1]),
+        ...              episode_return=jnp.array([0.0, 10.0, 0.0]),
+        ...              episode_end_step=jnp.array([1, 2, 3]))
+        >>> m = epoch_metrics(stats, jnp.int32(3))
+        >>> float(m["train_success"]), int(m["episodes_ended"]), float(m["episode_return"])
+        (0.5, 2, 5.0)
+    """
+    ended = stats["episode_ended"]
+    n = jnp.sum(ended.astype(jnp.int32))
+    mean = lambda v: jnp.where(n > 0, jnp.sum(jnp.where(ended, v, 0)) / jnp.maximum(n, 1), 0.0)
+    return {
+        "env_steps": env_steps,
+        "train_success": mean(stats["episode_success"].astype(jnp.float32)),
+        "episodes_ended": n,
+        "episode_return": mean(stats["episode_return"]),
+        "episode_log": {
+            "ended": ended,
+            "success": stats["episode_success"] & ended,
+            "length": jnp.where(ended, stats["episode_length"], 0).astype(jnp.int32),
+            "end_step": jnp.where(ended, stats["episode_end_step"], 0).astype(jnp.int32),
+        },
+    }

@@ -39,7 +39,6 @@ applied to each seed's padded partition, Q-table and marks (see :func:`_apply_sp
 from __future__ import annotations
 
 import dataclasses
-import time
 from typing import Any
 
 import jax
@@ -51,8 +50,7 @@ import envs
 from gara_jax.agents import forward_model as fm
 from gara_jax.agents import high_level as hl
 from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
-from gara_jax.algorithms.base import Algorithm
-from gara_jax.networks import mlp_layers
+from gara_jax.algorithms.base import Algorithm, epoch_metrics
 
 REFINE_METHODS = ("crown", "ibp")
 #: Environments with the U-maze's geometry and (x, y, vx, vy) observations, on which SPEC.md
@@ -65,12 +63,19 @@ U_MAZE_ENVS = ("u_maze", "point_u_maze")
 # ----------------------------------------------------------------------------------------------
 
 
+INTRINSIC_RULES = ("first_entry", "every_step")
+ENTRY_REWARDS = ("constant", "previous_plus_one")
+MEMORY_KINDS = ("options", "windows")
+FORWARD_MODELS = ("per_job", "shared")
+Q_COLUMNS = ("copy", "reference", "zero")
+
+
 @dataclasses.dataclass(frozen=True)
 class HandcraftedConfig:
     """The two-level agent on SPEC.md's fixed 6-box U-maze partition (no refinement).
 
     Attributes:
-        env: maze layout name (see ``envs.LAYOUTS``); the handcrafted partition is the U-maze's.
+        env: environment name (one of ``U_MAZE_ENVS``: the partitions are the U-maze's).
         k: environment steps per option (the high level decides every ``k`` steps).
         steps_per_epoch: environment steps per jitted training epoch.
         eval_episodes: greedy evaluation episodes per seed after every epoch.
@@ -78,8 +83,20 @@ class HandcraftedConfig:
         high: the high level's hyper-parameters.
         planning: choose goals with the shortest-path planner instead of the Q-table.
         max_goals: partition capacity (padding of every goal-indexed array).
-        reach_reward: intrinsic reward for entering the target goal (once per option).
+        intrinsic: the low level's goal reward (SPEC.md section 3.2). ``"first_entry"``
+            (GARA's): an entry reward on the first step of the option inside the target,
+            0 on later steps inside, ``outside_penalty`` outside. ``"every_step"``
+            (Handcrafted's in the reference): ``reach_reward`` on every step inside, 0
+            outside.
+        entry_reward: with ``"first_entry"``, the entry reward: ``"constant"``
+            (``reach_reward``) or ``"previous_plus_one"`` (the reference: the previous step's
+            intrinsic value plus ``reach_reward``, so usually 0.9 after a step outside).
+        reach_reward: see ``intrinsic`` and ``entry_reward``.
         outside_penalty: intrinsic reward of a step that ends outside the target goal.
+        reached_at_start: an option that *starts* inside its target has reached it already,
+            so it earns no entry reward (only the environment's). The reference (``False``)
+            pays the entry reward on the first step of every option that targets the goal it
+            is in, whatever the agent does.
         eval_epsilon_high, eval_epsilon_low: exploration during evaluation (0: greedy).
         terminal_on_entry: stop the low level's bootstrap on entering its goal (the reference
             does not).
@@ -97,6 +114,8 @@ class HandcraftedConfig:
     Example:
         >>> HandcraftedConfig().max_goals
         6
+        >>> HandcraftedConfig.reference().intrinsic
+        'every_step'
         >>> HandcraftedConfig(k=0)
         Traceback (most recent call last):
         ...
@@ -111,8 +130,11 @@ class HandcraftedConfig:
     high: hl.HighLevelConfig = hl.HighLevelConfig()
     planning: bool = False
     max_goals: int = 6
+    intrinsic: str = "first_entry"
+    entry_reward: str = "constant"
     reach_reward: float = 1.0
     outside_penalty: float = -0.1
+    reached_at_start: bool = False
     eval_epsilon_high: float = 0.0
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
@@ -121,6 +143,20 @@ class HandcraftedConfig:
     def __post_init__(self):
         _validate_common(self)
 
+    @classmethod
+    def reference(cls, **overrides):
+        """The authors' final maze version of Handcrafted (SPEC.md sections 3.2-3.3, 3.7).
+
+        Its own intrinsic reward (1 on every step inside the target, no penalty), the lowest-
+        index greedy tie-break, and the SPEC defaults the config already has (replay 100,000,
+        target copy every 20 steps, high-level epsilon decrement 0.0005). ``overrides``
+        replace fields, e.g. ``planning=True``.
+        """
+        fields = dict(intrinsic="every_step", entry_reward="constant",
+                      high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
+        fields.update(overrides)
+        return cls(**fields)
+
 
 @dataclasses.dataclass(frozen=True)
 class GaraConfig(HandcraftedConfig):
@@ -128,21 +164,63 @@ class GaraConfig(HandcraftedConfig):
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
         max_goals: partition capacity; a split that would exceed it is skipped and counted.
-        memory_capacity: high-level memory size (options).
+        memory: what the high-level memory holds (SPEC.md section 3.4). ``"options"``: one
+            row per option (start and end state, counting ``k`` steps towards the trigger),
+            plus, with ``hindsight_memory``, a copy towards the goal it ended in.
+            ``"windows"`` (the reference): at every step ``t`` of an episode whose option has
+            the same target as the previous option, the window ``s_{t-k} -> s_{t+1}``
+            (``k + 1`` steps, possibly straddling two options) counting 1, and a count-only row
+            per option start. The reference also stores option ends, but a bug swaps two of
+            their fields so that they are never selected as a pair's data; the preset
+            therefore stores none.
+        memory_capacity: high-level memory rows (50,000 in the reference's final version,
+            10,000 in its results version).
+        hindsight_memory: with ``memory="options"``, also store each option that ended in
+            another goal than its target as an option towards that goal.
         forward: the forward model's hyper-parameters.
-        min_steps: environment steps of experience a pair needs before it is analysed.
-        tau1, tau2, min_volume_ratio: the reachability thresholds (SPEC.md section 3).
+        forward_model: ``"per_job"``: a fresh model per analysis, trained on the pair's data
+            until its loss is stable (``forward``'s ``stable_decrease``/``max_epochs``), then
+            analysed. ``"shared"`` (the reference): one model per seed, never re-initialised;
+            each time a pair passes the trigger it takes one gradient step on at most
+            ``forward.batch_size`` of the pair's rows and records the MSE on a fresh sample;
+            from the ``shared_min_records``-th record on, the pair is analysed when its latest
+            MSE is less than ``forward.stable_decrease`` above the previous one. The reference
+            does this after every episode; here it runs between epochs, with one update per
+            episode of the epoch in which the pair was chosen.
+        shared_min_records: see ``forward_model="shared"``.
+        min_steps: experience a pair needs before it is analysed (the summed ``length`` of
+            its memory rows: environment steps of options, or windows plus option starts).
+        tau1, tau2, min_volume_ratio, small_box_c1: the reachability thresholds (SPEC.md
+            section 3.6): ``c1 >= tau1`` reaches, else ``c2 <= tau2`` does not, else bisect
+            while the box is above ``min_volume_ratio`` of ``G_s``; a box too small to split
+            reaches iff ``c1 >= small_box_c1`` (``None``: never).
         refine_method: ``"crown"`` (tighter output boxes: fewer spurious "undecided" splits)
             or ``"ibp"``.
         max_jobs_per_seed: analyses per seed per host step; pairs are taken by decreasing
             experience, skipping any that touches a goal being split in the same step.
-        hindsight_memory: also store each option that ended in another goal than its target
-            as an option towards that goal (the reference's relabelling).
+        skip_unreachable: do not analyse pairs marked unreachable again. The reference means
+            to, but a type bug makes its Q-learning variant analyse them anyway (its planning
+            variant skips them), which the preset reproduces.
+        split_epsilon_boost: after every analysis that grew the partition, the high level's
+            epsilon is multiplied by this (capped at 1): 1.5 in the reference's final
+            version, 1 (off) in its results version.
+        relabel_replay: after every host step that grew a seed's partition, append to the
+            low-level replay a copy of every stored transition whose goal is the box now
+            holding its next state, with reward 1 (the reference; the buffer is a ring, so
+            the oldest entries fall out).
+        q_columns: the Q-table columns (the pieces as targets) after a split. ``"copy"``:
+            every piece gets the split goal's column; ``"reference"``: the first reaching
+            piece keeps the split goal's column (it keeps its index) and the other pieces'
+            columns are 0, as the reference does; ``"zero"``: every piece's column is 0, so
+            no piece inherits a value learned for the whole box. Rows (the pieces as starts)
+            are always copied.
 
     Example:
         >>> cfg = GaraConfig(planning=True)
-        >>> cfg.tau1, cfg.min_steps, cfg.refine_method
-        (0.7, 5000, 'crown')
+        >>> cfg.tau1, cfg.tau2, cfg.min_steps, cfg.refine_method
+        (0.9, 0.01, 5000, 'crown')
+        >>> GaraConfig.reference().memory, GaraConfig.reference().forward_model
+        ('windows', 'shared')
         >>> GaraConfig(refine_method="zonotope")
         Traceback (most recent call last):
         ...
@@ -150,19 +228,27 @@ class GaraConfig(HandcraftedConfig):
     """
 
     max_goals: int = 64  # capacity for refinement (Handcrafted needs 6)
-    memory_capacity: int = 10_000
-    forward: fm.ForwardModelConfig = fm.ForwardModelConfig()
-    min_steps: int = 5000
-    tau1: float = 0.7
-    tau2: float = 0.1
-    min_volume_ratio: float = 0.05
-    refine_method: str = "crown"
+    memory: str = "options"
+    memory_capacity: int = 50_000
     hindsight_memory: bool = True
+    forward: fm.ForwardModelConfig = fm.ForwardModelConfig()
+    forward_model: str = "per_job"
+    shared_min_records: int = 3
+    min_steps: int = 5000
+    tau1: float = 0.9
+    tau2: float = 0.01
+    min_volume_ratio: float = 0.05
+    small_box_c1: float | None = 0.5
+    refine_method: str = "crown"
     max_jobs_per_seed: int = 4
+    skip_unreachable: bool = True
+    split_epsilon_boost: float = 1.0
+    relabel_replay: bool = False
+    q_columns: str = "copy"
 
     def __post_init__(self):
         super().__post_init__()
-        _positive_int(self, "memory_capacity", "max_jobs_per_seed")
+        _positive_int(self, "memory_capacity", "max_jobs_per_seed", "shared_min_records")
         if int(self.min_steps) != self.min_steps or self.min_steps < 0:
             raise ValueError(f"min_steps: must be an integer >= 0, got {self.min_steps}")
         if not 0.0 < self.tau1 <= 1.0:
@@ -171,11 +257,51 @@ class GaraConfig(HandcraftedConfig):
             raise ValueError(f"tau2: must lie in [0, tau1), got {self.tau2}")
         if not 0.0 < self.min_volume_ratio < 1.0:
             raise ValueError(f"min_volume_ratio: must lie in (0, 1), got {self.min_volume_ratio}")
+        if self.small_box_c1 is not None and not 0.0 <= self.small_box_c1 <= 1.0:
+            raise ValueError(
+                f"small_box_c1: must be None or lie in [0, 1], got {self.small_box_c1}")
         if self.refine_method not in REFINE_METHODS:
             raise ValueError(
                 f"refine_method: must be one of {REFINE_METHODS}, got {self.refine_method!r}")
         if not isinstance(self.forward, fm.ForwardModelConfig):
             raise ValueError(f"forward: must be a ForwardModelConfig, got {self.forward!r}")
+        _one_of(self, "memory", MEMORY_KINDS)
+        _one_of(self, "forward_model", FORWARD_MODELS)
+        if not (np.isfinite(self.split_epsilon_boost) and self.split_epsilon_boost >= 1.0):
+            raise ValueError(
+                "split_epsilon_boost: must be a finite number >= 1, got "
+                f"{self.split_epsilon_boost}")
+        _one_of(self, "q_columns", Q_COLUMNS)
+        _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
+
+    @classmethod
+    def reference(cls, planning: bool = False, **overrides):
+        """The authors' final maze version of GARA (SPEC.md section 3, revision 2).
+
+        Sliding-window memory of 50,000 rows and the trigger counting windows; one shared,
+        incrementally trained forward model with the reference's stability rule;
+        ``tau1 = 0.9``, ``tau2 = 0.01``, small boxes reaching iff ``c1 >= 0.5``; the x1.5
+        epsilon boost after a split; hindsight relabelling of the low-level replay; Q rows
+        (not columns) copied to new pieces; the "previous plus one" entry reward on closed
+        boxes; lowest-index greedy ties; the SPEC's DQN and high-level defaults. Reference
+        bugs: option-end rows are not forward-model data (section 3.4), and the Q-learning
+        variant re-analyses pairs marked unreachable (section 3.5; ``planning=True`` skips
+        them, as the reference's planner does). ``overrides`` replace fields.
+
+        Example:
+            >>> cfg = GaraConfig.reference()
+            >>> cfg.split_epsilon_boost, cfg.relabel_replay, cfg.skip_unreachable
+            (1.5, True, False)
+        """
+        fields = dict(
+            planning=planning, memory="windows", memory_capacity=50_000,
+            forward_model="shared", min_steps=5000, tau1=0.9, tau2=0.01, small_box_c1=0.5,
+            split_epsilon_boost=1.5, relabel_replay=True, q_columns="reference",
+            skip_unreachable=planning, intrinsic="first_entry", entry_reward="previous_plus_one",
+            reached_at_start=False, goal_membership="box",
+            high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
+        fields.update(overrides)
+        return cls(**fields)
 
 
 def _positive_int(cfg, *names):
@@ -183,6 +309,17 @@ def _positive_int(cfg, *names):
         value = getattr(cfg, name)
         if isinstance(value, bool) or int(value) != value or value < 1:
             raise ValueError(f"{name}: must be an integer >= 1, got {value}")
+
+
+def _one_of(cfg, name, choices):
+    if getattr(cfg, name) not in choices:
+        raise ValueError(f"{name}: must be one of {choices}, got {getattr(cfg, name)!r}")
+
+
+def _bools(cfg, *names):
+    for name in names:
+        if not isinstance(getattr(cfg, name), bool):
+            raise ValueError(f"{name}: must be a bool, got {getattr(cfg, name)!r}")
 
 
 def _validate_common(cfg):
@@ -193,8 +330,9 @@ def _validate_common(cfg):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
     if not isinstance(cfg.high, hl.HighLevelConfig):
         raise ValueError(f"high: must be a HighLevelConfig, got {cfg.high!r}")
-    if not isinstance(cfg.planning, bool):
-        raise ValueError(f"planning: must be a bool, got {cfg.planning!r}")
+    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start")
+    _one_of(cfg, "intrinsic", INTRINSIC_RULES)
+    _one_of(cfg, "entry_reward", ENTRY_REWARDS)
     if not np.isfinite(cfg.reach_reward) or not np.isfinite(cfg.outside_penalty):
         raise ValueError("reach_reward/outside_penalty: must be finite")
     if cfg.goal_membership not in ("box", "partition"):
@@ -203,10 +341,6 @@ def _validate_common(cfg):
     for name in ("eval_epsilon_high", "eval_epsilon_low"):
         if not 0.0 <= getattr(cfg, name) <= 1.0:
             raise ValueError(f"{name}: must lie in [0, 1], got {getattr(cfg, name)}")
-    for name in ("terminal_on_entry",) + (("hindsight_memory",) if hasattr(
-            cfg, "hindsight_memory") else ()):
-        if not isinstance(getattr(cfg, name), bool):
-            raise ValueError(f"{name}: must be a bool, got {getattr(cfg, name)!r}")
 
 
 def algorithm_name(config) -> str:
@@ -240,6 +374,36 @@ class Option:
 
 
 @struct.dataclass
+class Episode:
+    """Per-episode bookkeeping: what the sliding windows and the reference's reward read.
+
+    ``history[t % (k + 1)]`` holds the state at step ``t`` of the episode, so the last ``k + 1``
+    states are at hand; ``prev_lo/prev_hi`` are the previous option's target bounds
+    (``has_prev``: an option already ended in this episode).
+    """
+
+    length: jax.Array  # steps taken in the current episode
+    count: jax.Array  # episodes started so far (the current one's index)
+    ret: jax.Array  # environment return so far
+    last_intrinsic: jax.Array  # the previous step's intrinsic reward (0 at episode start)
+    history: jax.Array  # [k + 1, D]
+    prev_lo: jax.Array
+    prev_hi: jax.Array
+    has_prev: jax.Array
+
+
+@struct.dataclass
+class SharedForward:
+    """The reference's shared forward model of one seed and its per-pair MSE records."""
+
+    params: Any
+    opt_state: Any
+    mse_last: jax.Array  # [G, G] latest recorded MSE per pair
+    mse_prev: jax.Array  # [G, G] the record before it
+    records: jax.Array  # [G, G] records so far
+
+
+@struct.dataclass
 class GaraState:
     """One seed's agent (a pytree; batched over seeds by ``vmap``).
 
@@ -254,12 +418,13 @@ class GaraState:
     high: hl.HighState
     partition: Any  # gara_jax.partition.Partition
     option: Option
+    episode: Episode
     memory: fm.HighMemory
+    forward: SharedForward
     reachable: jax.Array
     unreachable: jax.Array
     blocked: jax.Array
     env_steps: jax.Array
-    episode_return: jax.Array
     host_key: jax.Array
 
 
@@ -277,13 +442,18 @@ def initial_partition(config):
 
 
 def intrinsic_reward(next_state, target_lo, target_hi, reached, reach_reward=1.0,
-                     outside_penalty=-0.1, in_target=None):
-    """The low level's goal reward for a step ending in ``next_state`` (SPEC.md section 3).
+                     outside_penalty=-0.1, in_target=None, rule="first_entry",
+                     previous=None):
+    """The low level's goal reward for a step ending in ``next_state`` (SPEC.md section 3.2).
 
-    ``reach_reward`` the first time during the option that the state lies in the (closed)
-    target box, 0 for later steps inside it, ``outside_penalty`` for steps outside. Returns
-    ``(reward, inside, first_entry)``. ``in_target`` (a bool) further restricts "inside", e.g.
-    to the states that *belong* to the target goal under the partition's first-box rule.
+    ``rule="first_entry"`` (GARA): the entry reward the first time during the option that the
+    state lies in the (closed) target box, 0 for later steps inside it, ``outside_penalty`` for
+    steps outside. The entry reward is ``reach_reward``, or with ``previous`` (the previous
+    step's intrinsic reward) given, ``previous + reach_reward`` (the reference's rule).
+    ``rule="every_step"`` (Handcrafted in the reference): ``reach_reward`` on every step
+    inside, 0 outside. Returns ``(reward, inside, first_entry)``. ``in_target`` (a bool)
+    further restricts "inside", e.g. to the states that *belong* to the target goal under the
+    partition's first-box rule.
 
     Example:
         >>> import jax.numpy as jnp
@@ -291,13 +461,48 @@ def intrinsic_reward(next_state, target_lo, target_hi, reached, reach_reward=1.0
         >>> [round(float(intrinsic_reward(jnp.array(s), lo, hi, r)[0]), 3)
         ...  for s, r in [([0.5, 1.0], False), ([0.5, 0.5], True), ([2.0, 0.5], True)]]
         [1.0, 0.0, -0.1]
+        >>> round(float(intrinsic_reward(jnp.array([0.5, 0.5]), lo, hi, False,
+        ...                              previous=-0.1)[0]), 3)
+        0.9
+        >>> float(intrinsic_reward(jnp.array([0.5, 0.5]), lo, hi, True, rule="every_step")[0])
+        1.0
     """
     inside = jnp.all((next_state >= target_lo) & (next_state <= target_hi))
     if in_target is not None:
         inside = inside & in_target
     first_entry = inside & jnp.logical_not(reached)
-    reward = jnp.where(first_entry, reach_reward, jnp.where(inside, 0.0, outside_penalty))
-    return reward, inside, first_entry
+    if rule == "every_step":
+        reward = jnp.where(inside, reach_reward, 0.0)
+    else:
+        entry = reach_reward if previous is None else previous + reach_reward
+        reward = jnp.where(first_entry, entry, jnp.where(inside, 0.0, outside_penalty))
+    return jnp.asarray(reward, jnp.float32), inside, first_entry
+
+
+def window_to_store(episode: Episode, obs, target_lo, target_hi, k: int):
+    """The reference's sliding window at this step (SPEC.md section 3.4).
+
+    Called before the step from ``obs`` (the state at step ``t = episode.length`` of the
+    episode) is taken, with the current option's target bounds. Returns ``(history, start,
+    store)``: the updated state history, ``s_{t-k}``, and whether the window ``s_{t-k} ->
+    s_{t+1}`` is stored (an option has ended in this episode and the current option has the
+    same target as the previous one; then ``t >= k``, so ``s_{t-k}`` is in the episode).
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> ep = Episode(length=jnp.int32(3), count=jnp.int32(0), ret=jnp.float32(0),
+        ...              last_intrinsic=jnp.float32(0), history=jnp.arange(4.0)[:, None],
+        ...              prev_lo=jnp.zeros(1), prev_hi=jnp.ones(1), has_prev=jnp.bool_(True))
+        >>> history, start, store = window_to_store(ep, jnp.array([3.0]), jnp.zeros(1),
+        ...                                         jnp.ones(1), k=2)
+        >>> float(start[0]), bool(store)  # s_{3-2} = s_1
+        (1.0, True)
+    """
+    t = episode.length
+    history = episode.history.at[t % (k + 1)].set(obs)
+    start = history[(t + 1) % (k + 1)]
+    same = jnp.all(episode.prev_lo == target_lo) & jnp.all(episode.prev_hi == target_hi)
+    return history, start, episode.has_prev & same
 
 
 # ----------------------------------------------------------------------------------------------
@@ -326,10 +531,14 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     max_steps = int(env_params.max_steps)
     dim = 4
     G = config.max_goals
+    k = config.k
     dqn = make_dqn(config.low, input_dim=3 * dim, num_actions=env.num_actions)
     high_cfg = config.high
     partition0 = initial_partition(config)
     memory_capacity = config.memory_capacity if refining else 1
+    windows = refining and config.memory == "windows"
+    forward = fm.make_forward_model(config.forward if refining else fm.ForwardModelConfig(),
+                                    state_dim=dim)
 
     def locate(partition, s):
         # A valid tiling covers every state; clamp so a stray -1 can never index out of range.
@@ -338,47 +547,74 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     def choose_goal(key, high, partition, here, epsilon):
         if config.planning:
             return hl.plan_goal(key, high.dist, high.succeeded, here, partition.count, epsilon)
-        return hl.q_goal(key, high.q, here, partition.count, epsilon)
+        return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break)
 
     def exit_goals(high, partition):
         goal = locate(partition, high.exit_state)
         return (jnp.arange(G) == goal) & high.exit_known
 
+    def in_goal(partition, s, goal, lo, hi, stale):
+        """``s`` counts as inside the goal ``goal`` with bounds ``lo, hi``."""
+        inside = jnp.all((s >= lo) & (s <= hi))
+        if config.goal_membership == "partition":
+            # The state must belong to the goal (first box containing it), not just lie on a
+            # face it shares with a lower-index goal; indices predating a split fall back to
+            # the box test.
+            inside = inside & ((locate(partition, s) == goal) | stale)
+        return inside
+
     # -- init ------------------------------------------------------------------------------
 
     def init(key) -> GaraState:
-        k_env, k_dqn, k_host = jax.random.split(key, 3)
+        k_env, k_dqn, k_host, k_fm = jax.random.split(key, 4)
         obs, env_state = env.reset(k_env, env_params)
         pairs = jnp.zeros((G, G), bool)
+        zeros = jnp.zeros(dim, jnp.float32)
         option = Option(
             start_obs=obs, start_goal=jnp.int32(0), target=jnp.int32(0),
-            target_lo=jnp.zeros(dim, jnp.float32), target_hi=jnp.zeros(dim, jnp.float32),
-            steps=jnp.int32(0), env_reward=jnp.float32(0.0), reached=jnp.asarray(False),
-            stale=jnp.asarray(False))
+            target_lo=zeros, target_hi=zeros, steps=jnp.int32(0), env_reward=jnp.float32(0.0),
+            reached=jnp.asarray(False), stale=jnp.asarray(False))
+        episode = Episode(
+            length=jnp.int32(0), count=jnp.int32(0), ret=jnp.float32(0.0),
+            last_intrinsic=jnp.float32(0.0),
+            history=jnp.zeros((k + 1 if windows else 1, dim), jnp.float32),
+            prev_lo=zeros, prev_hi=zeros, has_prev=jnp.asarray(False))
+        fm_params = jax.tree.map(lambda p: p[0], forward.init(k_fm[None]))
+        shared = SharedForward(
+            params=fm_params, opt_state=forward.init_optimizer(fm_params),
+            mse_last=jnp.zeros((G, G), jnp.float32), mse_prev=jnp.zeros((G, G), jnp.float32),
+            records=jnp.zeros((G, G), jnp.int32))
         return GaraState(
             obs=obs, env_state=env_state, dqn=dqn.init(k_dqn),
             high=hl.init_high_state(high_cfg, G, dim),
-            partition=jax.tree.map(jnp.asarray, partition0), option=option,
-            memory=fm.init_memory(memory_capacity, dim),
+            partition=jax.tree.map(jnp.asarray, partition0), option=option, episode=episode,
+            memory=fm.init_memory(memory_capacity, dim), forward=shared,
             reachable=pairs, unreachable=pairs, blocked=pairs,
-            env_steps=jnp.int32(0), episode_return=jnp.float32(0.0),
-            host_key=jax.random.key_data(k_host))
+            env_steps=jnp.int32(0), host_key=jax.random.key_data(k_host))
 
     # -- one environment step --------------------------------------------------------------
 
     def step(s: GaraState, key):
         k_high, k_act, k_env, k_dqn = jax.random.split(key, 4)
-        partition, option, high = s.partition, s.option, s.high
+        partition, option, high, episode = s.partition, s.option, s.high, s.episode
 
         # 1. High level: a new option where none is running.
         deciding = option.steps == 0
         here = locate(partition, s.obs)
         target = choose_goal(k_high, high, partition, here, high.epsilon)
+        t_lo, t_hi = partition.lo[target], partition.hi[target]
+        reached = jnp.asarray(False)
+        if config.reached_at_start:
+            reached = in_goal(partition, s.obs, target, t_lo, t_hi, False)
         fresh = Option(
-            start_obs=s.obs, start_goal=here, target=target,
-            target_lo=partition.lo[target], target_hi=partition.hi[target],
-            steps=jnp.int32(0), env_reward=jnp.float32(0.0), reached=jnp.asarray(False),
+            start_obs=s.obs, start_goal=here, target=target, target_lo=t_lo, target_hi=t_hi,
+            steps=jnp.int32(0), env_reward=jnp.float32(0.0), reached=reached,
             stale=jnp.asarray(False))
+        # The option that just ended becomes the episode's previous option.
+        episode = episode.replace(
+            prev_lo=jnp.where(deciding, option.target_lo, episode.prev_lo),
+            prev_hi=jnp.where(deciding, option.target_hi, episode.prev_hi),
+            has_prev=jnp.where(deciding, episode.length > 0, episode.has_prev))
         option = jax.tree.map(lambda a, b: jnp.where(deciding, a, b), fresh, option)
         high = high.replace(epsilon=hl.decay_epsilon(high_cfg, high.epsilon, deciding),
                             decisions=high.decisions + deciding)
@@ -395,13 +631,11 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         next_goal = locate(partition, next_s)
         in_target = None
         if config.goal_membership == "partition":
-            # The state must belong to the target goal (first box containing it), not just lie
-            # on a face it shares with a lower-index goal; indices predating a split fall back
-            # to the box test.
             in_target = (next_goal == option.target) | option.stale
+        previous = episode.last_intrinsic if config.entry_reward == "previous_plus_one" else None
         intrinsic, inside, first_entry = intrinsic_reward(
             next_s, option.target_lo, option.target_hi, option.reached, config.reach_reward,
-            config.outside_penalty, in_target)
+            config.outside_penalty, in_target, config.intrinsic, previous)
         transition = Transition(x, action, intrinsic + reward,
                                 jnp.concatenate([next_s, goal_in]),
                                 terminated | (first_entry & config.terminal_on_entry))
@@ -411,7 +645,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         option = option.replace(steps=option.steps + 1, env_reward=option.env_reward + reward,
                                 reached=option.reached | inside)
         episode_over = terminated | truncated
-        ended = (option.steps >= config.k) | episode_over
+        ended = (option.steps >= k) | episode_over
         outcome = hl.OptionOutcome(
             start=option.start_goal, target=option.target,
             next_goal=next_goal, reward=option.env_reward,
@@ -425,32 +659,50 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
                 dist = hl.relax_distances(dist, high.succeeded, exit_goals(high, partition))
             high = high.replace(dist=dist)
         env_steps = s.env_steps + 1
-        memory = s.memory
-        if refining:
+
+        # 5. The high-level memory (GARA only).
+        memory, history = s.memory, episode.history
+        if windows:
+            history, window_start, store = window_to_store(
+                episode, s.obs, option.target_lo, option.target_hi, k)
+            memory = fm.push_memory(memory, window_start, next_s, option.target_lo,
+                                    option.target_hi, reward, 1, env_steps, where=store,
+                                    episode=episode.count, data=True)
+            # Option starts count towards the trigger (not forward-model data).
+            memory = fm.push_memory(memory, option.start_obs, option.start_obs,
+                                    option.target_lo, option.target_hi, 0.0, 1, env_steps,
+                                    where=deciding, episode=episode.count, data=False)
+        elif refining:
             memory = fm.push_memory(memory, option.start_obs, next_s, option.target_lo,
                                     option.target_hi, option.env_reward, option.steps,
-                                    env_steps, where=ended)
+                                    env_steps, where=ended, episode=episode.count)
             if config.hindsight_memory:
                 # Also store the option as one towards the goal it actually ended in.
                 memory = fm.push_memory(
                     memory, option.start_obs, next_s, partition.lo[next_goal],
                     partition.hi[next_goal], option.env_reward, option.steps, env_steps,
-                    where=ended & (next_goal != option.target))
+                    where=ended & (next_goal != option.target), episode=episode.count)
         option = option.replace(steps=jnp.where(ended, 0, option.steps))
 
-        episode_return = s.episode_return + reward
+        ret = episode.ret + reward
+        length = episode.length + 1
         stats = dict(
-            episodes_ended=episode_over.astype(jnp.int32),
-            successes=terminated.astype(jnp.int32),
-            returns=jnp.where(episode_over, episode_return, 0.0),
             options_ended=ended.astype(jnp.int32),
             options_reached=(ended & option.reached).astype(jnp.int32),
             low_loss=dqn_info["loss"],
             low_updates=dqn_info["updated"].astype(jnp.int32),
+            episode_ended=episode_over, episode_success=terminated,
+            episode_length=length, episode_return=ret, episode_end_step=env_steps,
         )
+        episode = episode.replace(
+            length=jnp.where(episode_over, 0, length),
+            count=episode.count + episode_over.astype(jnp.int32),
+            ret=jnp.where(episode_over, 0.0, ret),
+            last_intrinsic=jnp.where(episode_over, 0.0, intrinsic),
+            history=history,
+            has_prev=episode.has_prev & ~episode_over)
         s = s.replace(obs=obs, env_state=env_state, dqn=dqn_state, high=high, option=option,
-                      memory=memory, env_steps=env_steps,
-                      episode_return=jnp.where(episode_over, 0.0, episode_return))
+                      episode=episode, memory=memory, env_steps=env_steps)
         return s, stats
 
     # -- one epoch ---------------------------------------------------------------------------
@@ -458,24 +710,18 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     def train_epoch(state: GaraState, key):
         keys = jax.random.split(key, config.steps_per_epoch)
         state, stats = jax.lax.scan(step, state, keys)
-        total = jax.tree.map(lambda v: jnp.sum(v, axis=0), stats)
-        ended = total["episodes_ended"]
-        per_episode = lambda v: jnp.where(ended > 0, v / jnp.maximum(ended, 1), 0.0)
-        metrics = {
-            "env_steps": state.env_steps,
-            "train_success": per_episode(total["successes"].astype(jnp.float32)),
-            "episodes_ended": ended,
-            "episode_return": per_episode(total["returns"]),
-            "n_goals": state.partition.count.astype(jnp.int32),
-            "option_success": total["options_reached"]
-            / jnp.maximum(total["options_ended"], 1).astype(jnp.float32),
-            "low_loss": total["low_loss"] / jnp.maximum(total["low_updates"], 1),
-            "low_epsilon": state.dqn.epsilon,
-            "high_epsilon": state.high.epsilon,
-        }
+        metrics = epoch_metrics(stats, state.env_steps)
+        metrics.update(
+            n_goals=state.partition.count.astype(jnp.int32),
+            option_success=jnp.sum(stats["options_reached"])
+            / jnp.maximum(jnp.sum(stats["options_ended"]), 1).astype(jnp.float32),
+            low_loss=jnp.sum(stats["low_loss"]) / jnp.maximum(jnp.sum(stats["low_updates"]), 1),
+            low_epsilon=state.dqn.epsilon,
+            high_epsilon=state.high.epsilon)
         return state, metrics
 
     # -- greedy evaluation -------------------------------------------------------------------
+
 
     def evaluate(state: GaraState, key):
         """Greedy high and low levels, ``eval_episodes`` episodes from the start."""
@@ -519,244 +765,12 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         return {"eval_success": jnp.mean(success.astype(jnp.float32)),
                 "eval_return": jnp.mean(ret)}
 
-    host_update = _make_host_update(config, locate, exit_goals) if refining else None
+    host_update = None
+    if refining:
+        from gara_jax.algorithms.refinement import make_host_update
+
+        host_update = make_host_update(config, locate, exit_goals, dqn, forward)
     return Algorithm(name=algorithm_name(config), config=config, init=init,
                      train_epoch=train_epoch, evaluate=evaluate, host_update=host_update)
 
 
-# ----------------------------------------------------------------------------------------------
-# GARA's host step: trigger, forward models, reachability analysis, splits
-# ----------------------------------------------------------------------------------------------
-
-
-def _make_host_update(config: GaraConfig, locate, exit_goals):
-    G = config.max_goals
-    forward = fm.make_forward_model(config.forward, state_dim=4)
-
-    @jax.jit
-    @jax.vmap
-    def memory_goals(state: GaraState):
-        """Goal indices of every stored option and the per-pair experience (device side)."""
-        mem, partition = state.memory, state.partition
-        start = locate(partition, mem.start)
-        target = fm.match_boxes(mem.target_lo, mem.target_hi, partition.lo, partition.hi,
-                                partition.count)
-        since = state.env_steps - config.steps_per_epoch
-        steps, recent = fm.pair_experience(start, target, mem, since, G)
-        return start, target, steps, recent
-
-    @jax.jit
-    @jax.vmap
-    def replan(state: GaraState):
-        """Exact planner distances on the refined partitions."""
-        high = state.high
-        dist = hl.shortest_distances(high.succeeded, exit_goals(high, state.partition),
-                                     state.partition.count)
-        return high.replace(dist=dist)
-
-    def host_update(states: GaraState, epoch: int):
-        from gara_jax import partition as part
-        from gara_jax import reach
-
-        t0 = time.perf_counter()
-        start_goal, target_goal, steps, recent = jax.device_get(memory_goals(states))
-        host = jax.device_get(dict(
-            count=states.partition.count, lo=states.partition.lo, hi=states.partition.hi,
-            reachable=states.reachable, unreachable=states.unreachable, blocked=states.blocked,
-            mem_start=states.memory.start, mem_end=states.memory.end,
-            mem_tlo=states.memory.target_lo, mem_thi=states.memory.target_hi,
-            size=states.memory.size, host_key=states.host_key))
-        n_seeds = len(host["count"])
-
-        # 1. The trigger, per seed; then non-conflicting jobs by decreasing experience.
-        jobs = []  # (seed, s, d)
-        for i in range(n_seeds):
-            n = int(host["count"][i])
-            ok = (recent[i] & (steps[i] >= config.min_steps) & ~host["reachable"][i]
-                  & ~host["unreachable"][i] & ~host["blocked"][i])
-            ok[np.arange(G), np.arange(G)] = False
-            ok[n:, :] = False
-            ok[:, n:] = False
-            pairs = sorted(zip(*np.nonzero(ok), strict=True), key=lambda p: -steps[i][p])
-            splitting, touched = set(), set()
-            for s_idx, d_idx in pairs:
-                if len([j for j in jobs if j[0] == i]) >= config.max_jobs_per_seed:
-                    break
-                if s_idx in touched or s_idx in splitting or d_idx in splitting:
-                    continue
-                jobs.append((i, int(s_idx), int(d_idx)))
-                splitting.add(s_idx)
-                touched.update((s_idx, d_idx))
-        info = dict(epoch=epoch, triggered=len(jobs), stable=0, analysed=0, splits=0,
-                    reaches=0, no_reach=0, capacity_skips=0, changed=np.zeros(n_seeds, bool),
-                    fit_s=0.0, refine_s=0.0)
-        if not jobs:
-            info["host_s"] = time.perf_counter() - t0
-            return states, info
-
-        # 2. Forward models, one fresh model per job, all trained in one batched call.
-        datasets = []
-        for i, s_idx, d_idx in jobs:
-            rows = np.nonzero((np.arange(len(start_goal[i])) < host["size"][i])
-                              & (start_goal[i] == s_idx) & (target_goal[i] == d_idx))[0]
-            x = np.concatenate([host["mem_start"][i][rows], host["mem_tlo"][i][rows],
-                                host["mem_thi"][i][rows]], axis=1)
-            datasets.append((x, host["mem_end"][i][rows]))
-        n_jobs = len(jobs)
-        # Jobs padded to a power of two (at least 8) and rows to the memory capacity: only a
-        # few shapes ever get compiled, whatever the number of jobs and their data sizes.
-        padded_jobs = max(8, 1 << int(np.ceil(np.log2(n_jobs))))
-        datasets += [(np.zeros((0, 12), np.float32), np.zeros((0, 4), np.float32))] * (
-            padded_jobs - n_jobs)
-        x, y, mask = fm.pad_jobs(datasets, config.forward.batch_size,
-                                 min_rows=config.memory_capacity,
-                                 max_rows=config.memory_capacity)
-        # Job keys depend only on the job's own seed, the epoch and the pair: reproducible.
-        seed_keys = jax.random.wrap_key_data(jnp.asarray(host["host_key"]))
-        job_keys = [jax.random.fold_in(jax.random.fold_in(seed_keys[i], epoch), s_idx * G + d_idx)
-                    for i, s_idx, d_idx in jobs]
-        job_keys = jnp.stack(job_keys + [job_keys[0]] * (padded_jobs - n_jobs))
-        k_init = jax.vmap(lambda k: jax.random.fold_in(k, 0))(job_keys)
-        k_fit = jax.vmap(lambda k: jax.random.fold_in(k, 1))(job_keys)
-        t_fit = time.perf_counter()
-        fit = forward.fit(forward.init(k_init), x, y, mask, k_fit)
-        stable = np.asarray(fit.stable)[:n_jobs]
-        info["fit_s"] = time.perf_counter() - t_fit
-        info["stable"] = int(stable.sum())
-        chosen = [j for j in range(n_jobs) if stable[j]]
-        if not chosen:
-            info["host_s"] = time.perf_counter() - t0
-            return states, info
-
-        # 3. One batched reachability analysis for every stable job.
-        t_ref = time.perf_counter()
-        params = jax.tree.map(lambda p: p[np.asarray(chosen)], fit.params)
-        lo, hi = host["lo"], host["hi"]
-        results = reach.refine_many(
-            mlp_layers(params),
-            np.stack([lo[jobs[j][0]][jobs[j][1]] for j in chosen]),
-            np.stack([hi[jobs[j][0]][jobs[j][1]] for j in chosen]),
-            np.stack([lo[jobs[j][0]][jobs[j][2]] for j in chosen]),
-            np.stack([hi[jobs[j][0]][jobs[j][2]] for j in chosen]),
-            tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
-            method=config.refine_method)
-        info["refine_s"] = time.perf_counter() - t_ref
-
-        # 4. Apply the verdicts seed by seed on host copies, then write everything back.
-        arrays = jax.device_get(dict(q=states.high.q, succeeded=states.high.succeeded,
-                                     stale=states.option.stale))
-        seeds = {}
-        for j, result in zip(chosen, results, strict=True):
-            i, s_idx, d_idx = jobs[j]
-            if i not in seeds:
-                seeds[i] = dict(
-                    partition=part.Partition.create(lo[i][: host["count"][i]],
-                                                    hi[i][: host["count"][i]], G),
-                    q=arrays["q"][i].copy(), succeeded=arrays["succeeded"][i].copy(),
-                    reachable=host["reachable"][i].copy(),
-                    unreachable=host["unreachable"][i].copy(), blocked=host["blocked"][i].copy())
-            outcome = _apply_split(seeds[i], s_idx, d_idx, result)
-            info["analysed"] += 1
-            info["splits"] += outcome == "split"
-            info["reaches"] += outcome == "reaches"
-            info["no_reach"] += outcome == "no_reach"
-            info["capacity_skips"] += outcome == "capacity"
-            info["changed"][i] |= outcome == "split"
-
-        new = dict(lo=lo, hi=hi, count=host["count"], q=arrays["q"],
-                   succeeded=arrays["succeeded"], reachable=host["reachable"],
-                   unreachable=host["unreachable"], blocked=host["blocked"],
-                   stale=arrays["stale"])
-        new = {k: np.array(v) for k, v in new.items()}  # writable copies
-        for i, seed in seeds.items():
-            p = seed["partition"]
-            new["lo"][i], new["hi"][i], new["count"][i] = p.lo, p.hi, p.count
-            for name in ("q", "succeeded", "reachable", "unreachable", "blocked"):
-                new[name][i] = seed[name]
-            new["stale"][i] |= info["changed"][i]
-        partition = states.partition.replace(
-            lo=jnp.asarray(new["lo"], states.partition.lo.dtype),
-            hi=jnp.asarray(new["hi"], states.partition.hi.dtype),
-            count=jnp.asarray(new["count"], states.partition.count.dtype))
-        high = states.high.replace(q=jnp.asarray(new["q"]),
-                                   succeeded=jnp.asarray(new["succeeded"]))
-        states = states.replace(
-            partition=partition, high=high,
-            reachable=jnp.asarray(new["reachable"]), unreachable=jnp.asarray(new["unreachable"]),
-            blocked=jnp.asarray(new["blocked"]),
-            option=states.option.replace(stale=jnp.asarray(new["stale"])))
-        if config.planning:
-            states = states.replace(high=replan(states))
-        info["host_s"] = time.perf_counter() - t0
-        return states, info
-
-    return host_update
-
-
-def _apply_split(seed: dict, s: int, d: int, result) -> str:
-    """Apply one analysis of the pair ``(G_s, G_d)`` to a seed's host-side arrays (in place).
-
-    ``G_s`` is replaced by the reaching boxes then the non-reaching ones (the first keeps index
-    ``s``, the others are appended). What indexes goals is updated as follows:
-
-    - Q-table: the rows *and* columns of every piece are copies of ``G_s``'s (the reference
-      copies rows; a piece, as a target, is best estimated by the whole box's value), then
-      ``Q[piece, d] = 0`` for the non-reaching pieces (as the reference does).
-    - Planner graph: rows and columns copied likewise; then the edge ``piece -> d`` is set for
-      reaching pieces and removed for non-reaching ones.
-    - Reachability marks: a piece's *row* (the piece as a start) inherits ``G_s``'s verdicts
-      towards other goals (a subset of a box that reaches, or misses, a goal does so too);
-      its *column* (the piece as a target) is cleared, since the old verdicts were about a
-      larger target. Then reaching pieces are marked reachable towards ``G_d`` and the others
-      unreachable.
-
-    An analysis whose boxes merge back into ``G_s`` changes no box: if all of ``G_s`` reaches,
-    the pair is marked reachable; if none of it does, nothing is marked (as in the reference,
-    which only marks the non-reaching pieces of a split), so the pair is analysed again later
-    with a better-trained low level. A split that does not fit in the capacity is skipped and
-    the pair marked ``blocked``. Returns ``"split"``, ``"reaches"``, ``"no_reach"`` or
-    ``"capacity"``.
-    """
-    from gara_jax import partition as part
-
-    reach_lo = np.asarray(result.reaching_lo).reshape(-1, 4)
-    reach_hi = np.asarray(result.reaching_hi).reshape(-1, 4)
-    miss_lo = np.asarray(result.nonreaching_lo).reshape(-1, 4)
-    miss_hi = np.asarray(result.nonreaching_hi).reshape(-1, 4)
-    n_reach = len(reach_lo)
-    boxes_lo = np.concatenate([reach_lo, miss_lo])
-    boxes_hi = np.concatenate([reach_hi, miss_hi])
-    if len(boxes_lo) <= 1:
-        if n_reach == 0:
-            # Nothing of G_s reaches G_d (yet): as in the reference, the pair stays open and is
-            # analysed again once explored anew, with a better low-level policy and more data.
-            return "no_reach"
-        seed["reachable"][s, d] = True
-        return "reaches"
-    if not part.can_fit(seed["partition"], len(boxes_lo) - 1):
-        seed["blocked"][s, d] = True
-        return "capacity"
-    seed["partition"], pieces = part.replace_box(seed["partition"], s, boxes_lo, boxes_hi)
-    pieces = [int(p) for p in np.asarray(pieces)]
-    q, succ = seed["q"], seed["succeeded"]
-    row_q, col_q, diag_q = q[s].copy(), q[:, s].copy(), q[s, s]
-    row_e, col_e = succ[s].copy(), succ[:, s].copy()
-    row_r, row_u = seed["reachable"][s].copy(), seed["unreachable"][s].copy()
-    for p in pieces:
-        q[p], q[:, p] = row_q, col_q
-        succ[p], succ[:, p] = row_e, col_e
-        seed["reachable"][p], seed["unreachable"][p] = row_r, row_u
-        seed["blocked"][p] = False
-    for p in pieces:
-        for a in pieces:
-            q[p, a], succ[p, a] = diag_q, False
-        seed["reachable"][:, p] = False
-        seed["unreachable"][:, p] = False
-        seed["blocked"][:, p] = False
-    for n, p in enumerate(pieces):
-        hits = n < n_reach
-        seed["reachable"][p, d], seed["unreachable"][p, d] = hits, not hits
-        succ[p, d] = hits
-        if not hits:
-            q[p, d] = 0.0
-    return "split"

@@ -11,7 +11,8 @@ do not. A box is analysed by bounding ``F`` over it with the goal inputs held at
 - else ``c2 <= tau2``: it does not;
 - else, while its volume is above ``min_volume_ratio`` of ``G_s``'s, it is bisected at the
   midpoint of the dimension with the largest *smear* (bound on ``sum_o |dF_o / ds_j|`` times the
-  width of dimension ``j``) and both halves are analysed; a box too small to split does not reach.
+  width of dimension ``j``) and both halves are analysed; a box too small to split reaches iff
+  ``c1 >= small_box_c1`` (the reference: 0.5; ``None``: it never reaches).
 
 The frontier is processed breadth-first, all jobs and all boxes of a depth level in one jitted,
 batched bounds call. Sizes are padded to powers of two so that few shapes get compiled.
@@ -154,7 +155,7 @@ def _collect(tree, dim, dtype, n_analysed, depth) -> RefineResult:
 
 def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
                 tau2: float = 0.1, min_volume_ratio: float = 0.05,
-                method: str = "crown") -> list[RefineResult]:
+                method: str = "crown", small_box_c1: float | None = None) -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -167,6 +168,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         tau2: ``c2`` at or below which a box does not reach.
         min_volume_ratio: boxes at or below this fraction of ``G_s``'s volume are not split.
         method: ``"ibp"`` or ``"crown"`` (CROWN intersected with IBP).
+        small_box_c1: a box too small to split (or with no width left) reaches iff its ``c1``
+            is at least this; ``None``: such a box does not reach.
 
     Returns:
         One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
@@ -189,6 +192,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         raise ValueError(f"tau1, tau2: need 0 < tau1 <= 1 and 0 <= tau2 <= 1, got {tau1}, {tau2}")
     if not 0.0 < min_volume_ratio <= 1.0:
         raise ValueError(f"min_volume_ratio: must be in (0, 1], got {min_volume_ratio}")
+    if small_box_c1 is not None and not 0.0 <= small_box_c1 <= 1.0:
+        raise ValueError(f"small_box_c1: must be None or lie in [0, 1], got {small_box_c1}")
     layers = _stacked_layers(stacked_layers)
     s_lo, s_hi = boxes.validate_boxes(start_lo, start_hi, "start_lo/start_hi")
     t_lo, t_hi = boxes.validate_boxes(target_lo, target_hi, "target_lo/target_hi")
@@ -244,9 +249,11 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 width_i = node["hi"] - node["lo"]
                 # Halving volume: at depth d the box has 2^-d of G_s's volume (over the
                 # dimensions where G_s has width, the only ones ever split).
-                if c2[j, i] <= tau2 or 0.5 ** node["depth"] <= min_volume_ratio or not (
-                        width_i > 0).any():
+                if c2[j, i] <= tau2:
                     node["verdict"] = False
+                    continue
+                if 0.5 ** node["depth"] <= min_volume_ratio or not (width_i > 0).any():
+                    node["verdict"] = small_box_c1 is not None and c1[j, i] >= small_box_c1
                     continue
                 # Largest smear; ties: widest, then lowest index. Only dimensions with width.
                 order = np.lexsort((np.arange(dim), -width_i, -smear[j, i]))
@@ -266,7 +273,7 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
 
 def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
            tau2: float = 0.1, min_volume_ratio: float = 0.05,
-           method: str = "crown") -> RefineResult:
+           method: str = "crown", small_box_c1: float | None = None) -> RefineResult:
     """Split the start box ``G_s`` into boxes that reach ``G_d`` and boxes that do not.
 
     The single-job form of :func:`refine_many`; ``layers_or_params`` is one forward model (a
@@ -294,4 +301,5 @@ def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: 
         raise ValueError(
             f"start_lo/target_lo: expected matching shapes [D], got {s_lo.shape}, {t_lo.shape}")
     return refine_many(stacked, s_lo[None], s_hi[None], t_lo[None], t_hi[None], tau1=tau1,
-                       tau2=tau2, min_volume_ratio=min_volume_ratio, method=method)[0]
+                       tau2=tau2, min_volume_ratio=min_volume_ratio, method=method,
+                       small_box_c1=small_box_c1)[0]

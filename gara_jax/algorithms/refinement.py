@@ -1,0 +1,422 @@
+"""GARA's host step between epochs: when a pair is analysed, how, and what a split changes.
+
+Read top to bottom, for all seeds at once (the states are batched over seeds):
+
+1. **Trigger** (SPEC.md section 3.5). A pair ``(G_s, G_d)``, ``s != d``, explored during the
+   last epoch, not known reachable, not blocked (a split that did not fit), not marked
+   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience. The
+   experience is derived from the high-level memory (the summed ``length`` of the pair's
+   rows, the goals located from the stored states and target bounds), so it stays right after
+   splits without bookkeeping.
+2. **Forward model.** ``forward_model="per_job"``: a fresh model per analysis job, all jobs
+   trained in one batched call until their loss is stable; unstable jobs are skipped.
+   ``"shared"`` (the reference): every triggered pair updates its seed's shared model once per
+   episode of the epoch in which it was chosen (one gradient step on at most 32 of its rows,
+   then an MSE record on a fresh sample); a pair with at least ``shared_min_records`` records
+   whose latest MSE is less than ``forward.stable_decrease`` above the previous one is
+   analysed.
+3. **Analysis**: one batched :func:`gara_jax.reach.refine_many` over every job, at most
+   ``max_jobs_per_seed`` per seed, taken by decreasing experience and skipping any that
+   touches a goal being split in the same step.
+4. **Splits** on host copies of each seed's padded partition, Q-table, planner graph and marks
+   (:func:`apply_split`), the epsilon boost, then everything written back; with
+   ``relabel_replay`` the low-level replay of every seed whose partition grew gets its
+   hindsight copies (:func:`gara_jax.agents.dqn.append_relabelled`).
+"""
+
+from __future__ import annotations
+
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from gara_jax.agents import forward_model as fm
+from gara_jax.agents import high_level as hl
+from gara_jax.networks import mlp_layers
+
+
+def make_host_update(config, locate, exit_goals, dqn, forward):
+    """``host_update(states, epoch) -> (states, info)`` for a :class:`GaraConfig`.
+
+    ``locate``/``exit_goals`` are the agent's goal lookups, ``dqn`` its low-level learner and
+    ``forward`` the :class:`~gara_jax.agents.forward_model.ForwardModel`. ``info`` counts what
+    happened (``triggered``, ``stable``, ``analysed``, ``splits``, ``reaches``, ``no_reach``,
+    ``capacity_skips``, ``fit_updates``), holds ``changed [n_seeds]`` (partition grew) and the
+    time spent (``fit_s``, ``refine_s``, ``host_s``).
+    """
+    from gara_jax import partition as part
+    from gara_jax import reach
+
+    G = config.max_goals
+    dim = 4
+    shared = config.forward_model == "shared"
+
+    @jax.jit
+    @jax.vmap
+    def memory_goals(state):
+        """Goal indices of every memory row and the per-pair experience (device side)."""
+        mem, partition = state.memory, state.partition
+        start = locate(partition, mem.start)
+        target = fm.match_boxes(mem.target_lo, mem.target_hi, partition.lo, partition.hi,
+                                partition.count)
+        since = state.env_steps - config.steps_per_epoch
+        steps, recent = fm.pair_experience(start, target, mem, since, G)
+        return start, target, steps, recent
+
+    @jax.jit
+    @jax.vmap
+    def shared_updates(state, start, target, pairs, live, keys):
+        mem, f = state.memory, state.forward
+        valid = (jnp.arange(mem.capacity + 1) < mem.size) & mem.data
+        x = jnp.concatenate([mem.start, mem.target_lo, mem.target_hi], axis=-1)
+        return forward.shared_updates(f.params, f.opt_state, x, mem.end, valid, start, target,
+                                      pairs, live, keys)
+
+    @jax.jit
+    @jax.vmap
+    def relabel(dqn_state, partition, where):
+        return dqn.append_relabelled(
+            dqn_state, lambda t: relabel_to_reached_goal(t, partition, dim), where)
+
+    @jax.jit
+    @jax.vmap
+    def replan(state):
+        """Exact planner distances on the refined partitions."""
+        high = state.high
+        dist = hl.shortest_distances(high.succeeded, exit_goals(high, state.partition),
+                                     state.partition.count)
+        return high.replace(dist=dist)
+
+    def seed_keys(host_key, epoch, salt):
+        keys = jax.random.wrap_key_data(jnp.asarray(host_key))
+        return jax.vmap(lambda k: jax.random.fold_in(jax.random.fold_in(k, epoch), salt))(keys)
+
+    def host_update(states, epoch: int):
+        t0 = time.perf_counter()
+        start_goal, target_goal, steps, recent = memory_goals(states)
+        steps, recent = jax.device_get((steps, recent))
+        host = jax.device_get(dict(
+            count=states.partition.count, lo=states.partition.lo, hi=states.partition.hi,
+            reachable=states.reachable, unreachable=states.unreachable, blocked=states.blocked,
+            host_key=states.host_key, records=states.forward.records,
+            mse_last=states.forward.mse_last, mse_prev=states.forward.mse_prev))
+        n_seeds = len(host["count"])
+        info = dict(epoch=epoch, triggered=0, stable=0, analysed=0, splits=0, reaches=0,
+                    no_reach=0, capacity_skips=0, fit_updates=0,
+                    changed=np.zeros(n_seeds, bool), fit_s=0.0, refine_s=0.0)
+
+        # 1. The trigger.
+        ok = recent & (steps >= config.min_steps) & ~host["reachable"] & ~host["blocked"]
+        if config.skip_unreachable:
+            ok &= ~host["unreachable"]
+        ok[:, np.arange(G), np.arange(G)] = False
+        live_goals = np.arange(G)[None, :] < host["count"][:, None]
+        ok &= live_goals[:, :, None] & live_goals[:, None, :]
+        info["triggered"] = int(ok.sum())
+
+        # 2. Forward models; the pairs whose model is ready for analysis.
+        t_fit = time.perf_counter()
+        forward_params = None
+        if shared:
+            ready, new_forward, n_updates = _shared_step(
+                config, states, host, ok, jax.device_get(states.memory), shared_updates,
+                start_goal, target_goal, seed_keys(host["host_key"], epoch, 1))
+            states = states.replace(forward=new_forward)
+            info["fit_updates"] = n_updates
+            jobs = _choose_jobs(config, ready, steps)
+            forward_params = states.forward.params
+            per_job = None
+        else:
+            jobs = _choose_jobs(config, ok, steps)
+            per_job = _fit_per_job(config, forward, states, jobs, start_goal, target_goal,
+                                   host["host_key"], epoch) if jobs else None
+        info["fit_s"] = time.perf_counter() - t_fit
+        if per_job is not None:
+            stable, fit_params = per_job
+            jobs = [job for job, ok_j in zip(jobs, stable, strict=True) if ok_j]
+            info["stable"] = len(jobs)
+            chosen_params = jax.tree.map(
+                lambda p: p[np.flatnonzero(stable)], fit_params)
+        else:
+            info["stable"] = len(jobs)
+            chosen_params = None
+        if not jobs:
+            info["host_s"] = time.perf_counter() - t0
+            return states, info
+
+        # 3. One batched reachability analysis for every job.
+        t_ref = time.perf_counter()
+        if chosen_params is None:
+            seeds_idx = np.asarray([i for i, _, _ in jobs])
+            chosen_params = jax.tree.map(lambda p: jnp.asarray(p)[seeds_idx], forward_params)
+        lo, hi = host["lo"], host["hi"]
+        results = reach.refine_many(
+            mlp_layers(chosen_params),
+            np.stack([lo[i][s] for i, s, _ in jobs]), np.stack([hi[i][s] for i, s, _ in jobs]),
+            np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
+            tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
+            method=config.refine_method, small_box_c1=config.small_box_c1)
+        info["refine_s"] = time.perf_counter() - t_ref
+
+        # 4. Apply the verdicts seed by seed on host copies, then write everything back.
+        arrays = jax.device_get(dict(q=states.high.q, succeeded=states.high.succeeded,
+                                     stale=states.option.stale, epsilon=states.high.epsilon))
+        new = {k: np.array(v) for k, v in dict(
+            lo=lo, hi=hi, count=host["count"], q=arrays["q"], succeeded=arrays["succeeded"],
+            reachable=host["reachable"], unreachable=host["unreachable"],
+            blocked=host["blocked"], stale=arrays["stale"], epsilon=arrays["epsilon"],
+            records=jax.device_get(states.forward.records)).items()}
+        seeds = {}
+        for (i, s_idx, d_idx), result in zip(jobs, results, strict=True):
+            if i not in seeds:
+                n = host["count"][i]
+                seeds[i] = dict(
+                    partition=part.Partition.create(lo[i][:n], hi[i][:n], G),
+                    **{name: new[name][i].copy() for name in (
+                        "q", "succeeded", "reachable", "unreachable", "blocked", "records")})
+            outcome = apply_split(seeds[i], s_idx, d_idx, result, config.q_columns)
+            info["analysed"] += 1
+            info["splits"] += outcome == "split"
+            info["reaches"] += outcome == "reaches"
+            info["no_reach"] += outcome == "no_reach"
+            info["capacity_skips"] += outcome == "capacity"
+            if outcome == "split":
+                info["changed"][i] = True
+                new["epsilon"][i] = min(1.0, new["epsilon"][i] * config.split_epsilon_boost)
+        for i, seed in seeds.items():
+            p = seed["partition"]
+            new["lo"][i], new["hi"][i], new["count"][i] = p.lo, p.hi, p.count
+            for name in ("q", "succeeded", "reachable", "unreachable", "blocked", "records"):
+                new[name][i] = seed[name]
+            new["stale"][i] |= info["changed"][i]
+        partition = states.partition.replace(
+            lo=jnp.asarray(new["lo"], states.partition.lo.dtype),
+            hi=jnp.asarray(new["hi"], states.partition.hi.dtype),
+            count=jnp.asarray(new["count"], states.partition.count.dtype))
+        high = states.high.replace(q=jnp.asarray(new["q"]),
+                                   succeeded=jnp.asarray(new["succeeded"]),
+                                   epsilon=jnp.asarray(new["epsilon"], states.high.epsilon.dtype))
+        states = states.replace(
+            partition=partition, high=high,
+            reachable=jnp.asarray(new["reachable"]), unreachable=jnp.asarray(new["unreachable"]),
+            blocked=jnp.asarray(new["blocked"]),
+            option=states.option.replace(stale=jnp.asarray(new["stale"])),
+            forward=states.forward.replace(records=jnp.asarray(new["records"])))
+        if config.relabel_replay and info["changed"].any():
+            states = states.replace(dqn=relabel(states.dqn, states.partition,
+                                                jnp.asarray(info["changed"])))
+        if config.planning:
+            states = states.replace(high=replan(states))
+        info["host_s"] = time.perf_counter() - t0
+        return states, info
+
+    return host_update
+
+
+def relabel_to_reached_goal(transitions, partition, dim: int = 4):
+    """Low-level transitions ``s ‖ goal -> s' ‖ goal`` relabelled with the goal now holding
+    ``s'`` (first-box rule) and reward 1: the reference's hindsight copies after a split.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> from gara_jax.agents.dqn import Transition
+        >>> from gara_jax.partition import Partition
+        >>> p = Partition.create([[0.0], [1.0]], [[1.0], [2.0]], max_goals=2)
+        >>> t = Transition(jnp.zeros((1, 3)), jnp.zeros(1, int), jnp.zeros(1),
+        ...                jnp.array([[1.5, 0.0, 1.0]]), jnp.zeros(1, bool))
+        >>> r = relabel_to_reached_goal(t, p, dim=1)
+        >>> r.obs.tolist(), r.next_obs.tolist(), r.reward.tolist()
+        ([[0.0, 1.0, 2.0]], [[1.5, 1.0, 2.0]], [1.0])
+    """
+    from gara_jax import partition as part
+
+    next_s = transitions.next_obs[:, :dim]
+    goal = jnp.maximum(part.locate(partition, next_s), 0)
+    goal_in = jnp.concatenate([partition.lo[goal], partition.hi[goal]], axis=-1)
+    return transitions._replace(
+        obs=jnp.concatenate([transitions.obs[:, :dim], goal_in], axis=-1),
+        next_obs=jnp.concatenate([next_s, goal_in], axis=-1),
+        reward=jnp.ones_like(transitions.reward))
+
+
+def _choose_jobs(config, candidates, steps):
+    """``[(seed, s, d)]``: per seed, candidate pairs by decreasing experience, at most
+    ``max_jobs_per_seed``, none touching a goal that another job of the seed splits."""
+    jobs = []
+    for i in range(len(candidates)):
+        pairs = sorted(zip(*np.nonzero(candidates[i]), strict=True),
+                       key=lambda p, i=i: -steps[i][p])
+        splitting, touched, n = set(), set(), 0
+        for s_idx, d_idx in pairs:
+            if n >= config.max_jobs_per_seed:
+                break
+            if s_idx in touched or s_idx in splitting or d_idx in splitting:
+                continue
+            jobs.append((i, int(s_idx), int(d_idx)))
+            splitting.add(s_idx)
+            touched.update((s_idx, d_idx))
+            n += 1
+    return jobs
+
+
+def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_key, epoch):
+    """Fresh forward models for ``jobs``, trained in one batched call: ``(stable, params)``."""
+    G = config.max_goals
+    mem = jax.device_get(states.memory)
+    start_goal, target_goal = jax.device_get((start_goal, target_goal))
+    datasets = []
+    for i, s_idx, d_idx in jobs:
+        rows = np.flatnonzero((np.arange(len(start_goal[i])) < mem.size[i]) & mem.data[i]
+                              & (start_goal[i] == s_idx) & (target_goal[i] == d_idx))
+        x = np.concatenate([mem.start[i][rows], mem.target_lo[i][rows],
+                            mem.target_hi[i][rows]], axis=1)
+        datasets.append((x, mem.end[i][rows]))
+    n_jobs = len(jobs)
+    # Jobs padded to a power of two (at least 8) and rows to 1024 * 4^i (at most the memory
+    # capacity): only a few shapes ever get compiled, whatever the jobs and their data sizes.
+    padded_jobs = max(8, 1 << int(np.ceil(np.log2(n_jobs))))
+    datasets += [(np.zeros((0, 12), np.float32), np.zeros((0, 4), np.float32))] * (
+        padded_jobs - n_jobs)
+    x, y, mask = fm.pad_jobs(datasets, config.forward.batch_size, min_rows=1024,
+                             max_rows=config.memory_capacity)
+    # Job keys depend only on the job's own seed, the epoch and the pair: reproducible.
+    keys = jax.random.wrap_key_data(jnp.asarray(host_key))
+    job_keys = [jax.random.fold_in(jax.random.fold_in(keys[i], epoch), s_idx * G + d_idx)
+                for i, s_idx, d_idx in jobs]
+    job_keys = jnp.stack(job_keys + [job_keys[0]] * (padded_jobs - n_jobs))
+    k_init = jax.vmap(lambda k: jax.random.fold_in(k, 0))(job_keys)
+    k_fit = jax.vmap(lambda k: jax.random.fold_in(k, 1))(job_keys)
+    fit = forward.fit(forward.init(k_init), x, y, mask, k_fit)
+    return np.asarray(fit.stable)[:n_jobs], jax.tree.map(lambda p: p[:n_jobs], fit.params)
+
+
+def _shared_step(config, states, host, ok, mem, shared_updates, start_goal, target_goal, keys):
+    """The reference's incremental fits: ``(ready [S, G, G], new SharedForward, n_updates)``.
+
+    Every triggered pair gets one update per episode of the last epoch in which it was chosen
+    (its option-start rows carry the episode index), in episode order; a pair is ready when it
+    has ``shared_min_records`` records and its latest MSE is less than ``stable_decrease``
+    above the previous one.
+    """
+    G = config.max_goals
+    n_seeds = len(ok)
+    start_np, target_np = jax.device_get((start_goal, target_goal))
+    since = np.asarray(jax.device_get(states.env_steps)) - config.steps_per_epoch
+    updates = []
+    for i in range(n_seeds):
+        # Option choices: the count-only option-start rows of the window memory, else options.
+        choices = ~mem.data[i] if config.memory == "windows" else True
+        rows = np.flatnonzero((np.arange(len(start_np[i])) < mem.size[i]) & choices
+                              & (mem.step[i] > since[i]) & (start_np[i] >= 0) & (target_np[i] >= 0))
+        pair = start_np[i][rows].astype(np.int64) * G + target_np[i][rows]
+        chosen = ok[i].reshape(-1)[pair]
+        # Unique (episode, pair) in episode order: one update each.
+        key = np.unique(mem.episode[i][rows][chosen].astype(np.int64) * G * G + pair[chosen])
+        updates.append(key % (G * G))
+    n_max = max(len(u) for u in updates)
+    if n_max == 0:
+        return np.zeros_like(ok), states.forward, 0
+    width = max(8, 1 << int(np.ceil(np.log2(n_max))))
+    pairs = np.zeros((n_seeds, width, 2), np.int32)
+    live = np.zeros((n_seeds, width), bool)
+    for i, u in enumerate(updates):
+        pairs[i, : len(u), 0], pairs[i, : len(u), 1] = u // G, u % G
+        live[i, : len(u)] = True
+    update_keys = jax.vmap(lambda k: jax.random.split(k, width))(keys)
+    params, opt_state, mse = shared_updates(states, start_goal, target_goal, jnp.asarray(pairs),
+                                            jnp.asarray(live), update_keys)
+    mse = np.asarray(mse)
+    records, last, prev = (np.array(host[name]) for name in ("records", "mse_last", "mse_prev"))
+    for i, u in enumerate(updates):
+        for j, flat in enumerate(u):
+            s_idx, d_idx = divmod(int(flat), G)
+            prev[i, s_idx, d_idx] = last[i, s_idx, d_idx]
+            last[i, s_idx, d_idx] = mse[i, j]
+            records[i, s_idx, d_idx] += 1
+    ready = ok & (records >= config.shared_min_records) & (
+        last - prev < config.forward.stable_decrease)
+    new_forward = states.forward.replace(
+        params=params, opt_state=opt_state, records=jnp.asarray(records),
+        mse_last=jnp.asarray(last), mse_prev=jnp.asarray(prev))
+    return ready, new_forward, int(live.sum())
+
+
+def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy") -> str:
+    """Apply one analysis of the pair ``(G_s, G_d)`` to a seed's host-side arrays (in place).
+
+    ``G_s`` is replaced by the reaching boxes then the non-reaching ones (the first keeps index
+    ``s``, the others are appended). What indexes goals is updated as follows:
+
+    - Q-table: the rows of every piece are copies of ``G_s``'s; the columns follow
+      ``q_columns`` (``"copy"``: every piece gets ``G_s``'s column, and entries between pieces
+      ``G_s``'s self-value; ``"reference"``: piece ``s`` keeps its column, the others get 0;
+      ``"zero"``: all 0); then ``Q[piece, d] = 0`` for the non-reaching pieces (as the
+      reference does).
+    - Planner graph: rows and columns copied; then the edge ``piece -> d`` is set for reaching
+      pieces and removed for non-reaching ones.
+    - Reachability marks: a piece's *row* (the piece as a start) inherits ``G_s``'s verdicts
+      towards other goals (a subset of a box that reaches, or misses, a goal does so too);
+      its *column* (the piece as a target) is cleared, since the old verdicts were about a
+      larger target. Then reaching pieces are marked reachable towards ``G_d`` and the others
+      unreachable.
+    - Shared forward-model records (``seed["records"]``, if present): cleared for every pair
+      that involves a piece.
+
+    An analysis whose boxes merge back into ``G_s`` changes no box: if all of ``G_s`` reaches,
+    the pair is marked reachable; if none of it does, nothing is marked (as in the reference,
+    which only marks the non-reaching pieces of a split), so the pair is analysed again later
+    with a better-trained low level. A split that does not fit in the capacity is skipped and
+    the pair marked ``blocked``. Returns ``"split"``, ``"reaches"``, ``"no_reach"`` or
+    ``"capacity"``.
+    """
+    from gara_jax import partition as part
+
+    reach_lo = np.asarray(result.reaching_lo).reshape(-1, 4)
+    reach_hi = np.asarray(result.reaching_hi).reshape(-1, 4)
+    miss_lo = np.asarray(result.nonreaching_lo).reshape(-1, 4)
+    miss_hi = np.asarray(result.nonreaching_hi).reshape(-1, 4)
+    n_reach = len(reach_lo)
+    boxes_lo = np.concatenate([reach_lo, miss_lo])
+    boxes_hi = np.concatenate([reach_hi, miss_hi])
+    if len(boxes_lo) <= 1:
+        if n_reach == 0:
+            # Nothing of G_s reaches G_d (yet): as in the reference, the pair stays open and is
+            # analysed again once explored anew, with a better low-level policy and more data.
+            return "no_reach"
+        seed["reachable"][s, d] = True
+        return "reaches"
+    if not part.can_fit(seed["partition"], len(boxes_lo) - 1):
+        seed["blocked"][s, d] = True
+        return "capacity"
+    seed["partition"], pieces = part.replace_box(seed["partition"], s, boxes_lo, boxes_hi)
+    pieces = [int(p) for p in np.asarray(pieces)]
+    q, succ = seed["q"], seed["succeeded"]
+    row_q, col_q, diag_q = q[s].copy(), q[:, s].copy(), q[s, s]
+    row_e, col_e = succ[s].copy(), succ[:, s].copy()
+    row_r, row_u = seed["reachable"][s].copy(), seed["unreachable"][s].copy()
+    for p in pieces:
+        q[p] = row_q
+        if q_columns == "copy":
+            q[:, p] = col_q
+        elif q_columns == "zero" or p != s:
+            q[:, p] = 0.0
+        succ[p], succ[:, p] = row_e, col_e
+        seed["reachable"][p], seed["unreachable"][p] = row_r, row_u
+        seed["blocked"][p] = False
+    for p in pieces:
+        for a in pieces:
+            q[p, a], succ[p, a] = (diag_q if q_columns == "copy" else q[p, a]), False
+        seed["reachable"][:, p] = False
+        seed["unreachable"][:, p] = False
+        seed["blocked"][:, p] = False
+        if "records" in seed:
+            seed["records"][p], seed["records"][:, p] = 0, 0
+    for n, p in enumerate(pieces):
+        hits = n < n_reach
+        seed["reachable"][p, d], seed["unreachable"][p, d] = hits, not hits
+        succ[p, d] = hits
+        if not hits:
+            q[p, d] = 0.0
+    return "split"

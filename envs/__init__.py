@@ -21,21 +21,31 @@ from envs.maze import (
     state_to_vector,
 )
 
+#: Physics-simulated environments :func:`make` accepts beside the kinematic layouts.
+PHYSICS_ENVS = ("point_u_maze",)
 
-#: Every name :func:`make` accepts (the kinematic layouts; other simulators add theirs).
-ENV_NAMES = tuple(LAYOUTS)
+#: Every name :func:`make` accepts: the kinematic layouts, then the physics mazes.
+ENV_NAMES = tuple(LAYOUTS) + PHYSICS_ENVS
 
 
-def make(name: str, **overrides) -> tuple[Maze, EnvParams]:
-    """``(env, params)`` for a layout of SPEC.md's table; keyword overrides replace fields.
+def make(name: str, **overrides):
+    """``(env, params)`` for a name of :data:`ENV_NAMES`; keyword overrides replace fields.
 
-    Raises ``ValueError`` listing the valid names for an unknown layout.
+    The kinematic layouts of SPEC.md's table give a :class:`Maze`; ``"point_u_maze"`` gives
+    the brax-simulated :class:`envs.point_maze.PointMaze` (brax is imported only then). Raises
+    ``ValueError`` listing the valid names for an unknown name.
 
     Example:
         >>> env, params = make("four_rooms")
         >>> env.num_actions, params.walls.shape
         (4, (4, 4))
     """
+    if name == "point_u_maze":
+        from envs.point_maze import make_point_maze
+
+        return make_point_maze(**overrides)
+    if name not in LAYOUTS:
+        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(ENV_NAMES)}")
     params = make_params(name, **overrides)
     return Maze(name), params
 
@@ -46,6 +56,7 @@ __all__ = [
     "GYM_IDS",
     "LAYOUTS",
     "ENV_NAMES",
+    "PHYSICS_ENVS",
     "EnvParams",
     "EnvState",
     "Maze",

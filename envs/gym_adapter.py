@@ -1,8 +1,9 @@
 """Gymnasium adapter around the JAX maze, and the registration of its ids.
 
 Ids: ``gara_jax/UMaze-v0``, ``gara_jax/FourRooms-v0``, ``gara_jax/UMaze6-v0``,
-``gara_jax/BigUMaze-v0``, ``gara_jax/Labyrinth-v0`` (registered when :mod:`envs` or
-:mod:`gara_jax` is imported).
+``gara_jax/BigUMaze-v0``, ``gara_jax/Labyrinth-v0`` and the brax-simulated
+``gara_jax/PointUMaze-v0`` (registered when :mod:`envs` or :mod:`gara_jax` is imported; brax is
+imported only when the point maze is made).
 
 Episode length: the environment truncates by itself when ``max_steps`` (300 by default, a
 constructor keyword) steps have been taken, exactly like the JAX environment, so the ids are
@@ -60,11 +61,10 @@ class MazeEnv(gymnasium.Env):
             )
         overrides = {} if max_steps is None else {"max_steps": max_steps}
         self.layout = layout
-        self.params = make_params(layout, **overrides)
+        self._maze, self.params = self._make(layout, overrides)
         self.max_steps = int(self.params.max_steps)
         self.render_mode = render_mode
         self.render_size = int(render_size)
-        self._maze = Maze(layout)
         self._device_params = jax.device_put(self.params)
         self._step_fn = jax.jit(self._packed_step)
         self._reset_fn = jax.jit(self._maze.reset)
@@ -78,6 +78,10 @@ class MazeEnv(gymnasium.Env):
         self._key = jax.random.key(0)
         self._state = None
         self._boxes = None
+
+    def _make(self, layout: str, overrides: dict):
+        """The JAX environment and its parameters (the point maze overrides this)."""
+        return Maze(layout), make_params(layout, **overrides)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)
@@ -127,7 +131,10 @@ class MazeEnv(gymnasium.Env):
             )
             return None
         obs = self._obs() if self._state is not None else np.r_[self.params.start, 0.0, 0.0]
-        return render_rgb(self.params, obs, boxes=self._boxes, size=self.render_size)
+        return render_rgb(
+            self.params, obs, boxes=self._boxes, size=self.render_size,
+            agent_radius=getattr(self._maze, "ball_radius", None),
+        )
 
     def set_goal_boxes(self, lo, hi) -> None:
         """Overlay goal boxes ``[G, >=2]`` (only x, y are drawn); ``(None, None)`` clears them."""
@@ -145,14 +152,43 @@ class MazeEnv(gymnasium.Env):
         return np.asarray(state_to_vector(self._state), dtype=np.float32)
 
 
+class PointMazeEnv(MazeEnv):
+    """``point_u_maze`` (the brax-simulated U-maze) behind the same Gymnasium API as
+    :class:`MazeEnv`; frames draw the ball at its true radius.
+
+    Example:
+        >>> import gymnasium, envs
+        >>> env = gymnasium.make("gara_jax/PointUMaze-v0", max_steps=50)
+        >>> obs, info = env.reset(seed=0)
+        >>> obs.shape, env.unwrapped.max_steps
+        ((4,), 50)
+    """
+
+    def __init__(
+        self, render_mode: str | None = None, max_steps: int | None = None, render_size: int = 256
+    ):
+        super().__init__("u_maze", render_mode, max_steps, render_size)
+
+    def _make(self, layout: str, overrides: dict):
+        from envs.point_maze import make_point_maze
+
+        return make_point_maze(**overrides)
+
+
+#: Gymnasium ids of the physics mazes, beside :data:`envs.layouts.GYM_IDS`.
+PHYSICS_GYM_IDS = {"point_u_maze": "gara_jax/PointUMaze-v0"}
+
+
 def register_envs() -> None:
-    """Register one Gymnasium id per layout (idempotent)."""
-    for layout, env_id in GYM_IDS.items():
+    """Register one Gymnasium id per layout, and the point maze's (idempotent)."""
+    entries = [(env_id, "MazeEnv", {"layout": layout}) for layout, env_id in GYM_IDS.items()]
+    entries += [(env_id, "PointMazeEnv", {}) for env_id in PHYSICS_GYM_IDS.values()]
+    for env_id, cls, kwargs in entries:
         if env_id not in gymnasium.registry:
             gymnasium.register(
                 id=env_id,
-                entry_point="envs.gym_adapter:MazeEnv",
-                kwargs={"layout": layout},
+                entry_point=f"envs.gym_adapter:{cls}",
+                kwargs=kwargs,
                 max_episode_steps=None,
             )
 

@@ -25,7 +25,7 @@ BOX_COLOURS = (
 BOX_ALPHA = 0.35
 
 
-def render_rgb(params, obs, boxes=None, size: int = 256) -> np.ndarray:
+def render_rgb(params, obs, boxes=None, size: int = 256, agent_radius=None) -> np.ndarray:
     """An ``[size, size, 3]`` uint8 picture of the maze with the agent at ``obs``.
 
     Args:
@@ -34,6 +34,8 @@ def render_rgb(params, obs, boxes=None, size: int = 256) -> np.ndarray:
         boxes: optional ``(lo, hi)`` of goal boxes, each ``[G, >=2]``; the first two dims are
             taken as ``x, y``. Drawn as translucent fills with outlines, colour by index.
         size: side of the image in pixels.
+        agent_radius: radius of the agent's disc in maze units (the point maze's ball);
+            ``None`` draws a marker of ``size / 40`` pixels.
 
     Example:
         >>> import envs
@@ -92,7 +94,7 @@ def render_rgb(params, obs, boxes=None, size: int = 256) -> np.ndarray:
     # The agent: a disc, clipped to the image.
     x, y = (float(v) for v in np.asarray(obs, np.float64)[:2])
     cx, cy = margin + x * scale, margin + (n - y) * scale
-    radius = max(2.0, size / 40)
+    radius = max(2.0, size / 40 if agent_radius is None else float(agent_radius) * scale)
     rows, cols = np.ogrid[:size, :size]
     img[(rows + 0.5 - cy) ** 2 + (cols + 0.5 - cx) ** 2 <= radius**2] = AGENT
     return img.astype(np.uint8)

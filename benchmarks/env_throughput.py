@@ -12,6 +12,11 @@ reference runs:
 * ``envs.reference.NumpyReferenceMaze``: the same rules on small NumPy arrays per step (the
   style of the authors' code; identical states, much slower in CPython).
 
+Rows for ``point_u_maze`` (the brax-simulated U-maze, ``envs/point_maze.py``) follow, at
+``--point-batches`` (1, 20 and 1024 by default) for ``--point-steps`` steps, measured the same
+way in this process only (not in the pinned child: its question is XLA's thread split of the
+kinematic step). Their speedup column still divides by the kinematic maze's plain loop.
+
 Both are timed before and after the JAX rows (the machine may be shared and its load may
 change). The speedup column divides by the best steps/s of the FASTEST plain loop, the stricter
 baseline. A further row steps the jitted single-environment ``env.step`` from a Python loop (what
@@ -115,6 +120,7 @@ class Stopwatch:
 
 
 def bench_jax(layout: str, batch: int, num_steps: int, repeats: int, seed: int) -> dict:
+    """One ``jit(vmap(scan))`` row for any name of ``envs.ENV_NAMES``."""
     env, params = envs.make(layout)
     params = jax.device_put(params)
     run = jax.jit(jax.vmap(make_rollout(env, num_steps), in_axes=(0, None)))
@@ -127,8 +133,10 @@ def bench_jax(layout: str, batch: int, num_steps: int, repeats: int, seed: int) 
     for _ in range(repeats):
         with watch:
             _, ended = jax.block_until_ready(compiled(keys, params))
+    prefix = "" if layout in envs.LAYOUTS else f"{layout}: "
     return {
-        "method": "jit(vmap(scan)) step_autoreset",
+        "method": f"{prefix}jit(vmap(scan)) step_autoreset",
+        "env": layout,
         "batch": batch,
         "steps_per_env": num_steps,
         "compile_s": compile_s,
@@ -253,6 +261,16 @@ def parse_args(argv=None) -> argparse.Namespace:
         default=5_000,
         help="steps of the Python loop over jit(step); 0 skips it",
     )
+    parser.add_argument(
+        "--point-batches",
+        type=int,
+        nargs="*",
+        default=[1, 20, 1024],
+        help="batch sizes of the point_u_maze rows; none skips them",
+    )
+    parser.add_argument(
+        "--point-steps", type=int, default=256, help="steps per environment of point_u_maze"
+    )
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
@@ -268,12 +286,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     # Internal: run the JAX rows only, pinned to this CPU, and print them as JSON.
     parser.add_argument("--jax-rows-on-cpu", type=int, default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    for name in ("steps", "loop_steps", "repeats"):
+    for name in ("steps", "loop_steps", "repeats", "point_steps"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")
     if args.jit_loop_steps < 0:
         parser.error("--jit-loop-steps must be >= 0")
-    if any(b < 1 for b in args.batches):
+    if any(b < 1 for b in args.batches + args.point_batches):
         parser.error("--batches must all be >= 1")
     return args
 
@@ -336,6 +354,10 @@ def main(argv=None) -> dict:
         row["cores"] = cores
         rows.append(row)
     rows += jax_rows(args, cores)
+    for batch in args.point_batches:
+        row = bench_jax("point_u_maze", batch, args.point_steps, args.repeats, args.seed)
+        row["cores"] = cores
+        rows.append(row)
     single = None if args.no_single_core else single_core_jax_rows(args)
     if isinstance(single, list):
         rows += single

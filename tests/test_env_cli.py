@@ -62,6 +62,10 @@ def test_benchmark_quick_run_writes_json(tmp_path, capsys):
             "20",
             "--repeats",
             "1",
+            "--point-batches",
+            "2",
+            "--point-steps",
+            "5",
             "--out",
             str(out),
         ]
@@ -78,6 +82,8 @@ def test_benchmark_quick_run_writes_json(tmp_path, capsys):
     jax_rows = [r for r in rows if r["method"].startswith("jit(vmap(scan))")]
     pinned = [r for r in jax_rows if r["cores"] == "1 (pinned)"]
     assert [r["batch"] for r in jax_rows if r not in pinned] == [3]
+    point = [r for r in rows if r["method"].startswith("point_u_maze: jit(vmap(scan))")]
+    assert [(r["batch"], r["steps_per_env"], r["env"]) for r in point] == [(2, 5, "point_u_maze")]
     if hasattr(os, "sched_setaffinity") and len(os.sched_getaffinity(0)) > 1:
         assert [r["batch"] for r in pinned] == [3]
         assert all(r["xla_split_loops"] in (0, None) for r in pinned)

@@ -13,8 +13,11 @@ A checkpoint is written after every epoch under ``--out/checkpoints``; ``--resum
 from it and ends with exactly the metrics of an uninterrupted run. Result files are written
 only when every method has finished, each atomically.
 
-Usage: ``gara-jax reproduce [--seeds 20] [--steps 120000] [--methods gara,hiro] [--out DIR]
-[--quick] [--resume]`` (or ``python -m experiments.u_maze ...``).
+``--env point_u_maze`` runs the same study on the brax-simulated U-maze (envs/point_maze.py)
+and writes the same files to ``results/point_u_maze`` by default.
+
+Usage: ``gara-jax reproduce [--env u_maze] [--seeds 20] [--steps 120000] [--methods gara,hiro]
+[--out DIR] [--quick] [--resume]`` (or ``python -m experiments.u_maze ...``).
 """
 
 from __future__ import annotations
@@ -31,6 +34,8 @@ import numpy as np
 
 METHODS = ("gara", "gara_planning", "handcrafted", "hiro")
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
+ENVS = ("u_maze", "point_u_maze")  # the U-maze environments the partitions are defined for
+ENV_TITLES = {"u_maze": "the U-shaped maze", "point_u_maze": "the U-shaped maze (brax ball)"}
 PARTITION_STEPS = (0, 1_000, 30_000)  # the paper's panels; the run's end is added
 
 
@@ -64,7 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="environment steps per seed (default 120000, rounded up to epochs)")
     p.add_argument("--methods", default=",".join(METHODS),
                    help=f"comma-separated subset of {','.join(METHODS)}")
-    p.add_argument("--out", default="results/u_maze", help="output directory")
+    p.add_argument("--env", default="u_maze", choices=ENVS,
+                   help="u_maze (kinematic, the paper's) or point_u_maze (brax rigid body)")
+    p.add_argument("--out", default=None, help="output directory (default results/ENV)")
     p.add_argument("--quick", action="store_true",
                    help=f"a first look: {QUICK['seeds']} seeds, {QUICK['steps']} steps, "
                         f"{QUICK['steps_per_epoch']}-step epochs (explicit --seeds/--steps win)")
@@ -76,6 +83,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def _apply_defaults(args: argparse.Namespace) -> argparse.Namespace:
+    if getattr(args, "env", None) is None:
+        args.env = "u_maze"
+    if args.out is None:
+        args.out = f"results/{args.env}"
     if args.seeds is None:
         args.seeds = QUICK["seeds"] if args.quick else 20
     if args.steps is None:
@@ -121,10 +132,10 @@ def validate(args) -> list[str]:
 def run_config(args, methods) -> dict:
     """The JSON written to ``config.json``: arguments and every method's full config."""
     configs = {m: dataclasses.asdict(method_config(
-        m, steps_per_epoch=args.steps_per_epoch, eval_episodes=args.eval_episodes))
+        m, env=args.env, steps_per_epoch=args.steps_per_epoch, eval_episodes=args.eval_episodes))
         for m in methods}
     return {"seeds": args.seeds, "steps": args.steps, "methods": methods,
-            "steps_per_epoch": args.steps_per_epoch, "quick": args.quick, "env": "u_maze",
+            "steps_per_epoch": args.steps_per_epoch, "quick": args.quick, "env": args.env,
             "configs": configs}
 
 
@@ -154,7 +165,7 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
     from gara_jax import checkpoint
     from gara_jax.train import init_loop, n_epochs_for, train_epochs
 
-    config = method_config(method, steps_per_epoch=args.steps_per_epoch,
+    config = method_config(method, env=args.env, steps_per_epoch=args.steps_per_epoch,
                            eval_episodes=args.eval_episodes)
     n_epochs = n_epochs_for(config, args.steps)
     path = ckpt_dir / f"{method}.npz"
@@ -213,14 +224,14 @@ def write_outputs(out: Path, methods, records, run_cfg, seeds) -> dict:
     results.write_json(out / "summary.json", summary)
     _atomic_png(out / "success_curve.png",
                 lambda p: plots.plot_success_curves(
-                    curves, p, title=f"Average success rate on the U-shaped maze "
+                    curves, p, title=f"Average success rate on {ENV_TITLES[run_cfg['env']]} "
                                      f"({len(seeds)} runs)"))
     gara = next((m for m in ("gara", "gara_planning") if m in methods), None)
     if gara is not None:
         snaps = records[gara]["snapshots"]
         end = int(np.asarray(records[gara]["metrics"]["env_steps"])[-1][0])
         panels = [_latest_at(snaps, s) for s in (*PARTITION_STEPS, end)]
-        _, params = envs.make("u_maze")
+        _, params = envs.make(run_cfg["env"])
         _atomic_png(out / "partitions.png", lambda p: plots.plot_partitions(
             [(s["step"], np.asarray(s["lo"]), np.asarray(s["hi"]), s["count"]) for s in panels],
             params, p, suptitle=f"{gara}, seed {seeds[0]}: partition at or before 0, 1e3, "

@@ -85,7 +85,8 @@ def _probability(text: str) -> float:
 def _demo_arguments(parser: argparse.ArgumentParser) -> None:
     from envs.layouts import LAYOUTS  # light: plain data, no JAX
 
-    parser.add_argument("--env", default="u_maze", choices=LAYOUTS, help="maze layout")
+    parser.add_argument("--env", default="u_maze", choices=(*LAYOUTS, "point_u_maze"),
+                        help="maze layout, or point_u_maze (the brax-simulated U-maze)")
     parser.add_argument(
         "--episodes", type=_positive_int, default=2000, help="episodes per policy (default 2000)"
     )

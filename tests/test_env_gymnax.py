@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import importlib.util
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-gymnax = pytest.importorskip("gymnax")
+if importlib.util.find_spec("gymnax") is None:  # installed but broken must fail, not skip
+    pytest.skip("gymnax is not installed (the gymnax extra)", allow_module_level=True)
 from gymnax.environments import environment, spaces  # noqa: E402
 from gymnax.wrappers.purerl import FlattenObservationWrapper, LogWrapper  # noqa: E402
 

@@ -49,6 +49,7 @@ def _variants():
         low=DQNConfig(loss="all_actions", buffer_size=10_000, target_update_every=200),
         high=HighLevelConfig(epsilon_decrement=0.005))
     fixed = rep(goal_membership="partition", reached_at_start=True)
+    nr = dataclasses.replace(fixed, relabel_replay=False)
     return {
         "previous_default": ("GaraConfig() before SPEC revision 2 (session 4)", previous),
         "reference": ("GaraConfig.reference(): the authors' final maze version", ref),
@@ -86,14 +87,67 @@ def _variants():
                             fixed.high, q_target_entry="both"))),
         "both+no_relabel": ("ref+both without the replay relabelling",
                             dataclasses.replace(fixed, relabel_replay=False)),
+        "both+stall_penalty": ("ref+both, intrinsic reward -1 for a step that does not move",
+                               dataclasses.replace(fixed, stall_penalty=-1.0)),
+        "both+per_job": ("ref+both with a fresh forward model per analysis, fitted until stable",
+                         dataclasses.replace(fixed, forward_model="per_job")),
+        "both+min_steps_1000": ("ref+both, a pair is analysed after 1,000 counts (not 5,000)",
+                                dataclasses.replace(fixed, min_steps=1000)),
         "both+every_step": ("ref+both with the every-step intrinsic reward",
                             dataclasses.replace(fixed, intrinsic="every_step")),
+        # On ref+both without the relabelling (the change that mattered most).
+        "nr": ("ref+both, no replay relabelling", nr),
+        "nr+stall_penalty": ("nr, intrinsic reward -1 for a step that does not move",
+                             dataclasses.replace(nr, stall_penalty=-1.0)),
+        "nr+min_steps_1000": ("nr, pairs analysed after 1,000 counts",
+                              dataclasses.replace(nr, min_steps=1000)),
+        "nr+self_target_exit": ("nr, the current goal is a target only where it holds the exit",
+                                dataclasses.replace(nr, self_target="exit_goal")),
+        "nr+target_200": ("nr, low-level target network copied every 200 steps",
+                          dataclasses.replace(nr, low=dataclasses.replace(
+                              nr.low, target_update_every=200))),
+        "nr+replay_10k_target_200": ("nr, low-level replay 10,000 and target copy every 200",
+                                     dataclasses.replace(nr, low=dataclasses.replace(
+                                         nr.low, buffer_size=10_000, target_update_every=200))),
+        "nr+eps_0.005": ("nr, high-level epsilon decrement 0.005",
+                         dataclasses.replace(nr, high=dataclasses.replace(
+                             nr.high, epsilon_decrement=0.005))),
+        "nr+stall+penalty_0.01": ("nr, stall reward -1 and outside penalty -0.01 (not -0.1)",
+                                  dataclasses.replace(nr, stall_penalty=-1.0,
+                                                      outside_penalty=-0.01)),
+        "nr+penalty_0.01": ("nr, outside penalty -0.01 (not -0.1)",
+                            dataclasses.replace(nr, outside_penalty=-0.01)),
+        "nr+stall+random_ties": ("nr, stall reward -1 and random greedy ties",
+                                 dataclasses.replace(nr, stall_penalty=-1.0, high=dataclasses.replace(
+                                     nr.high, tie_break="random"))),
+        "nsr+target_200": ("nr+stall+random_ties, target network copied every 200 steps",
+                           dataclasses.replace(nr, stall_penalty=-1.0, high=dataclasses.replace(
+                               nr.high, tie_break="random"), low=dataclasses.replace(
+                               nr.low, target_update_every=200))),
+        "nsr+q_zero": ("nr+stall+random_ties, pieces' Q columns reset to 0",
+                       dataclasses.replace(nr, stall_penalty=-1.0, q_columns="zero",
+                                           high=dataclasses.replace(nr.high, tie_break="random"))),
+        "nsr+per_job": ("nr+stall+random_ties, per-job forward models",
+                        dataclasses.replace(nr, stall_penalty=-1.0, forward_model="per_job",
+                                            high=dataclasses.replace(nr.high, tie_break="random"))),
+        "nr+per_job": ("nr, a fresh forward model per analysis, fitted until stable",
+                       dataclasses.replace(nr, forward_model="per_job")),
+        "nr+q_zero": ("nr, pieces' Q columns reset to 0 after a split",
+                      dataclasses.replace(nr, q_columns="zero")),
+        "nr+random_ties": ("nr, greedy high-level ties broken at random",
+                           dataclasses.replace(nr, high=dataclasses.replace(
+                               nr.high, tie_break="random"))),
         "default": ("GaraConfig(): this project's default", GaraConfig()),
         "default_planning": ("GaraConfig(planning=True)", GaraConfig(planning=True)),
         "reference_planning": ("GaraConfig.reference(planning=True)",
                                GaraConfig.reference(planning=True)),
         "handcrafted": ("HandcraftedConfig()", HandcraftedConfig()),
         "handcrafted_reference": ("HandcraftedConfig.reference()", HandcraftedConfig.reference()),
+        "handcrafted_previous": ("HandcraftedConfig() before SPEC revision 2 (session 4)",
+                                 HandcraftedConfig(low=previous.low, high=previous.high)),
+        "handcrafted+target_200": ("HandcraftedConfig(), target network copied every 200 steps",
+                                   HandcraftedConfig(low=dataclasses.replace(
+                                       HandcraftedConfig().low, target_update_every=200))),
     }
 
 

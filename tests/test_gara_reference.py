@@ -299,21 +299,21 @@ def test_shared_forward_model_needs_records_before_an_analysis():
     assert np.isfinite(prev)
 
 
-def test_shared_updates_skip_pairs_without_rows():
+def test_shared_updates_skip_empty_segments_and_dead_slots():
     f = fm.make_forward_model(fm.ForwardModelConfig(), state_dim=4)
     params = jax.tree.map(lambda p: p[0], f.init(jax.random.split(jax.random.key(0), 1)))
     x, y = jnp.ones((10, 12)), jnp.zeros((10, 4))
-    data = jnp.ones(10, bool)
-    start_goal, target_goal = jnp.zeros(10, jnp.int32), jnp.ones(10, jnp.int32)
+    rows, seg_start, seg_len = fm.pair_segments(np.zeros(10), np.ones(10, bool), np.array([1, 0]))
+    assert seg_len.tolist() == [0, 10]
     keys = jax.random.split(jax.random.key(1), 2)
-    same, _, mse = f.shared_updates(params, f.init_optimizer(params), x, y, data, start_goal,
-                                    target_goal, jnp.array([[1, 0], [0, 1]]),
-                                    jnp.array([True, False]), keys)
+    opt = f.init_optimizer(params)
+    same, _, mse = f.shared_updates(params, opt, x, y, jnp.asarray(rows), jnp.asarray(seg_start),
+                                    jnp.asarray(seg_len), jnp.array([True, False]), keys)
     for a, b in zip(jax.tree.leaves(params), jax.tree.leaves(same), strict=True):
-        np.testing.assert_array_equal(a, b)  # pair (1, 0) has no rows, (0, 1) is not live
+        np.testing.assert_array_equal(a, b)  # pair 1 has no rows, pair 0's slot is not live
     assert float(mse[0]) == 0.0 and float(mse[1]) > 0.0
-    moved, _, _ = f.shared_updates(params, f.init_optimizer(params), x, y, data, start_goal,
-                                   target_goal, jnp.array([[0, 1]]), jnp.array([True]), keys[:1])
+    moved, _, _ = f.shared_updates(params, opt, x, y, jnp.asarray(rows), jnp.asarray(seg_start),
+                                   jnp.asarray(seg_len), jnp.array([False, True]), keys)
     assert any(not np.array_equal(a, b) for a, b in zip(
         jax.tree.leaves(params), jax.tree.leaves(moved), strict=True))
 
@@ -332,3 +332,40 @@ def test_episode_records_match_the_epoch_counts():
         assert np.all(length <= 300) and np.all((length < 300) | (success == 0))
         assert np.all(success[length < 300] == 1)  # ended early only by reaching the exit
         assert end[-1] <= 1200
+
+
+def _replay_after_one_epoch(**overrides):
+    cfg = GaraConfig(steps_per_epoch=200, eval_episodes=1, low=LOW, memory_capacity=500,
+                     high=HighLevelConfig(epsilon_start=1.0, epsilon_min=1.0), **overrides)
+    alg = make_algorithm(cfg)
+    state, _ = jax.jit(alg.train_epoch)(alg.init(jax.random.key(5)), jax.random.key(6))
+    exp = jax.device_get(state.dqn.buffer.experience)
+    n = int(state.dqn.buffer.current_index)
+    return {name: np.asarray(getattr(exp, name))[0, :n] for name in exp._fields}
+
+
+def test_stall_penalty_replaces_the_reward_of_steps_that_do_not_move():
+    t = _replay_after_one_epoch(stall_penalty=-1.0)
+    stalled = np.all(t["obs"][:, :4] == t["next_obs"][:, :4], axis=1)
+    assert 0 < stalled.sum() < len(stalled)  # random actions from rest press on bounds
+    np.testing.assert_allclose(t["reward"][stalled], -1.0)
+    assert np.all(t["reward"][~stalled] > -1.0)
+    plain = _replay_after_one_epoch()
+    stalled = np.all(plain["obs"][:, :4] == plain["next_obs"][:, :4], axis=1)
+    assert np.all(plain["reward"][stalled] > -1.0)
+
+
+def test_reached_at_start_pays_no_entry_reward_to_options_starting_inside():
+    left_lo, left_hi = np.array([0, 0, -1, -1.0]), np.array([1, 3, 1, 1.0])
+
+    def entries_inside_left(t):
+        goal_left = np.all(t["obs"][:, 4:8] == left_lo, axis=1) & np.all(
+            t["obs"][:, 8:] == left_hi, axis=1)
+        inside = lambda s: np.all((s >= left_lo) & (s <= left_hi), axis=1)
+        stay = goal_left & inside(t["obs"][:, :4]) & inside(t["next_obs"][:, :4])
+        return int(np.sum(stay & (t["reward"] >= 0.9))), int(stay.sum())
+
+    with_flag, n = entries_inside_left(_replay_after_one_epoch(reached_at_start=True))
+    assert with_flag == 0 and n > 0
+    without, _ = entries_inside_left(_replay_after_one_epoch())
+    assert without > 0  # the first step of every such option earns the entry reward

@@ -230,10 +230,11 @@ class ForwardModel(NamedTuple):
     - ``fit(params, inputs [J, N, 3D], targets [J, N, D], mask [J, N], keys [J]) -> FitResult``,
       jitted; ``N`` must be a multiple of the batch size (pad with :func:`pad_jobs`).
     - ``init_optimizer(params) -> opt_state`` (one model's Adam state),
-    - ``shared_updates(params, opt_state, inputs [N, 3D], targets [N, D], data [N],
-      start_goal [N], target_goal [N], pairs [U, 2], live [U], keys [U]) -> (params, opt_state,
-      mse [U])``: ``U`` incremental updates of one shared model, update ``u`` on the data rows
-      of the goal pair ``pairs[u]``; not jitted (callers ``vmap``/``jit`` it over seeds).
+    - ``shared_updates(params, opt_state, inputs [N, 3D], targets [N, D], rows [M],
+      seg_start [U], seg_len [U], live [U], keys [U]) -> (params, opt_state, mse [U])``: ``U``
+      incremental updates of one shared model; update ``u`` trains on rows drawn from
+      ``rows[seg_start[u] : seg_start[u] + seg_len[u]]`` (row indices grouped by goal pair,
+      see :func:`pair_segments`); not jitted (callers ``vmap``/``jit`` it over seeds).
     """
 
     init: callable
@@ -243,19 +244,31 @@ class ForwardModel(NamedTuple):
     shared_updates: callable
 
 
-def sample_rows(key, rows, size: int):
-    """Indices of ``size`` distinct rows drawn uniformly among ``rows`` (a bool mask), and a mask
-    of which draws are real (fewer than ``size`` rows: all of them, the rest masked).
+def pair_segments(pair_of_row, valid, pairs):
+    """Row indices grouped by pair, and each pair's segment in them (host side, NumPy).
+
+    ``pair_of_row [N]`` is each row's pair id, ``valid [N]`` which rows count, ``pairs [U]`` the
+    pair ids asked for. Returns ``(rows [N], seg_start [U], seg_len [U])``: ``rows`` lists the
+    valid rows sorted by pair (padded with 0), and pair ``pairs[u]``'s rows are
+    ``rows[seg_start[u] : seg_start[u] + seg_len[u]]``.
 
     Example:
-        >>> import jax, jax.numpy as jnp
-        >>> idx, ok = sample_rows(jax.random.key(0), jnp.array([False, True, True, False]), 3)
-        >>> sorted(idx[ok].tolist()), int(ok.sum())
-        ([1, 2], 2)
+        >>> import numpy as np
+        >>> rows, start, length = pair_segments(np.array([3, 1, 3, 2]),
+        ...                                     np.array([True, True, True, False]),
+        ...                                     np.array([3, 2]))
+        >>> rows[start[0]: start[0] + length[0]].tolist(), length.tolist()
+        ([0, 2], [2, 0])
     """
-    scores = jnp.where(rows, jax.random.uniform(key, rows.shape), -1.0)
-    top, idx = jax.lax.top_k(scores, min(size, rows.shape[0]))
-    return idx, top >= 0.0
+    idx = np.flatnonzero(valid)
+    keys = np.asarray(pair_of_row)[idx]
+    order = np.argsort(keys, kind="stable")
+    sorted_keys, idx = keys[order], idx[order]
+    start = np.searchsorted(sorted_keys, pairs, side="left")
+    end = np.searchsorted(sorted_keys, pairs, side="right")
+    rows = np.zeros(len(valid), np.int32)
+    rows[: len(idx)] = idx
+    return rows, start.astype(np.int32), (end - start).astype(np.int32)
 
 
 def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardModel:
@@ -332,25 +345,31 @@ def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardMod
 
     fit = jax.jit(jax.vmap(fit_one))
 
-    def shared_updates(params, opt_state, x, y, data, start_goal, target_goal, pairs, live, keys):
+    def shared_updates(params, opt_state, x, y, rows, seg_start, seg_len, live, keys):
         """The reference's incremental training of one shared model (SPEC.md section 3.5)."""
+
+        def draw(key, start, length):
+            # ``batch`` rows of the segment, uniformly with replacement (masked if empty).
+            pick = start + jnp.floor(jax.random.uniform(key, (batch,)) * length).astype(jnp.int32)
+            idx = rows[jnp.clip(pick, 0, rows.shape[0] - 1)]
+            return idx, jnp.broadcast_to(length > 0, (batch,))
 
         def one(carry, inp):
             params, opt_state = carry
-            pair, live_u, key = inp
-            rows_u = data & (start_goal == pair[0]) & (target_goal == pair[1])
+            start, length, live_u, key = inp
             k_fit, k_eval = jax.random.split(key)
-            idx, ok = sample_rows(k_fit, rows_u, batch)
+            idx, ok = draw(k_fit, start, length)
             grads = jax.grad(masked_mse)(params, x[idx], y[idx], ok)
             updates, new_opt = optimizer.update(grads, opt_state, params)
             new_params = optax.apply_updates(params, updates)
-            go = live_u & jnp.any(ok)
+            go = live_u & (length > 0)
             params, opt_state = jax.tree.map(lambda a, b: jnp.where(go, a, b),
                                              (new_params, new_opt), (params, opt_state))
-            idx, ok = sample_rows(k_eval, rows_u, batch)
+            idx, ok = draw(k_eval, start, length)
             return (params, opt_state), masked_mse(params, x[idx], y[idx], ok)
 
-        (params, opt_state), mse = jax.lax.scan(one, (params, opt_state), (pairs, live, keys))
+        (params, opt_state), mse = jax.lax.scan(one, (params, opt_state),
+                                                (seg_start, seg_len, live, keys))
         return params, opt_state, mse
 
     return ForwardModel(init=init, apply=apply, fit=fit, init_optimizer=optimizer.init,

@@ -180,25 +180,33 @@ def argmax_random_tie(key, values, mask) -> jax.Array:
     return jnp.argmax(jnp.where(ties, noise, -1.0)).astype(jnp.int32)
 
 
-def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random") -> jax.Array:
+def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random",
+           exclude_current=False) -> jax.Array:
     """Epsilon-greedy goal from ``Q[current]`` over the valid goals (pass ``epsilon=0`` for greedy).
 
     Greedy ties are broken uniformly at random, or by the lowest index (``tie_break="lowest"``).
+    ``exclude_current`` (a bool, may be traced) removes ``current`` from the choice, greedy and
+    random alike (unless it is the only valid goal).
 
     Example:
         >>> import jax, jax.numpy as jnp
         >>> q = jnp.zeros((4, 4)).at[1, 2].set(1.0)
         >>> int(q_goal(jax.random.key(0), q, 1, 3, 0.0))
         2
+        >>> int(q_goal(jax.random.key(0), q.at[1, 1].set(5.0), 1, 3, 0.0, exclude_current=True))
+        2
     """
     k_explore, k_random, k_tie = jax.random.split(key, 3)
     valid = valid_goals(n_goals, q.shape[-1])
+    others = valid & (jnp.arange(q.shape[-1]) != current)
+    valid = jnp.where(exclude_current & jnp.any(others), others, valid)
     if tie_break == "lowest":
         greedy = jnp.argmax(jnp.where(valid, q[current], -INF)).astype(jnp.int32)
     else:
         greedy = argmax_random_tie(k_tie, q[current], valid)
     explore = jax.random.uniform(k_explore) < epsilon
-    return jnp.where(explore, random_goal(k_random, n_goals), greedy)
+    random = argmax_random_tie(k_random, jnp.zeros(q.shape[-1]), valid)
+    return jnp.where(explore, random, greedy)
 
 
 def plan_goal(key, dist, succeeded, current, n_goals, epsilon) -> jax.Array:

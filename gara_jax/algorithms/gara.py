@@ -1,10 +1,12 @@
 """GARA and Handcrafted: a two-level (feudal) agent whose goals are boxes of a state partition.
 
-Read top to bottom: configs, the agent's state, then :func:`make_gara` with the pieces of one
-environment step (high-level decision, low-level action, intrinsic reward, option bookkeeping),
-the epoch (one ``lax.scan``), the greedy evaluation, and GARA's host-side refinement between
-epochs. Handcrafted is the same agent on SPEC.md's fixed 6-box partition with no refinement
-(and no high-level memory, which only the refinement reads).
+Read top to bottom: configs (with :meth:`GaraConfig.reference` / :meth:`HandcraftedConfig.
+reference`, the authors' final maze version), the agent's state, then :func:`make_gara` with
+the pieces of one environment step (high-level decision, low-level action, intrinsic reward,
+option bookkeeping, high-level memory), the epoch (one ``lax.scan``) and the greedy
+evaluation. GARA's host step between epochs (trigger, forward model, analysis, splits) is its
+own module, :mod:`gara_jax.algorithms.refinement`. Handcrafted is the same agent on SPEC.md's
+fixed 6-box partition with no refinement (and no high-level memory).
 
 One environment step, for one seed (everything vmaps over seeds):
 
@@ -13,27 +15,19 @@ One environment step, for one seed (everything vmaps over seeds):
    epsilon-greedy, or the planner).
 2. *Low level.* The goal-conditioned DQN acts epsilon-greedily on ``s ‖ G_d.lo ‖ G_d.hi``; the
    environment steps with auto-reset.
-3. *Intrinsic reward* (SPEC.md section 3): ``+1`` the first time in the option that the next
-   state lies in ``G_d``, ``0`` for later steps inside it, ``-0.1`` for steps outside, plus the
-   environment reward. As in the reference, the low-level transition stops bootstrapping only
-   when the episode terminates (``terminal_on_entry=True`` also stops it on the first entry),
-   so the low level learns to enter its goal and stay there until the option ends.
+3. *Intrinsic reward* (SPEC.md section 3.2, options ``intrinsic``, ``entry_reward``,
+   ``goal_membership``, ``reached_at_start``, ``stall_penalty``), plus the environment reward.
+   As in the reference, the low-level transition stops bootstrapping only when the episode
+   terminates (``terminal_on_entry=True`` also stops it on the first entry).
 4. *Option end* (``k`` steps, or the episode ended): tabular Q update with the environment
    reward collected during the option (by default on the goal the option actually ended in,
-   see :class:`~gara_jax.agents.high_level.HighLevelConfig`), planner graph update, and (GARA)
-   the option pushed to the high-level memory as states and target bounds; with
-   ``hindsight_memory`` an option that ended in another goal than its target is also stored
-   as one towards that goal, as the reference does.
+   see :class:`~gara_jax.agents.high_level.HighLevelConfig`) and planner graph update.
+5. *High-level memory* (GARA, option ``memory``): whole options (and hindsight copies), or the
+   reference's sliding windows plus count-only option starts, stored as states and target
+   bounds (never goal indices, so nothing needs rewriting after a split).
 
-Between epochs GARA's :func:`host_update` runs SPEC.md's refinement trigger on every seed:
-a pair ``(G_s, G_d)``, ``s != d``, explored during the last epoch, neither known reachable nor
-marked unreachable, with at least ``min_steps`` environment steps of experience. "Experience"
-is counted from the high-level memory (the summed lengths of the pair's stored options, the
-goals derived from the stored states and target bounds), so it stays right after splits
-without any bookkeeping; it is also exactly the data the forward model is trained on. Forward
-models for all triggered (seed, pair) jobs are trained in one batched call until their loss
-has stabilised, analysed with one batched :func:`gara_jax.reach.refine_many`, and the splits
-applied to each seed's padded partition, Q-table and marks (see :func:`_apply_split`).
+Every step also logs the episode bookkeeping from which the driver extracts each training
+episode (success, length, end step): the paper's metric (SPEC.md section 3.1).
 """
 
 from __future__ import annotations
@@ -68,6 +62,7 @@ ENTRY_REWARDS = ("constant", "previous_plus_one")
 MEMORY_KINDS = ("options", "windows")
 FORWARD_MODELS = ("per_job", "shared")
 Q_COLUMNS = ("copy", "reference", "zero")
+SELF_TARGETS = ("always", "exit_goal")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -93,10 +88,22 @@ class HandcraftedConfig:
             intrinsic value plus ``reach_reward``, so usually 0.9 after a step outside).
         reach_reward: see ``intrinsic`` and ``entry_reward``.
         outside_penalty: intrinsic reward of a step that ends outside the target goal.
+        stall_penalty: if not ``None``, the intrinsic reward of a step after which the state
+            is exactly unchanged (the agent pressed against a wall or a bound at rest),
+            replacing the rule's value. Such a step is a fixed point of the dynamics: a
+            greedy policy that takes it once takes it forever. ``None``: no special case
+            (the reference).
         reached_at_start: an option that *starts* inside its target has reached it already,
             so it earns no entry reward (only the environment's). The reference (``False``)
             pays the entry reward on the first step of every option that targets the goal it
             is in, whatever the agent does.
+        self_target: which goals the Q-learning high level may choose as the target of the
+            goal it is in. ``"always"`` (the reference): any goal, the current one included.
+            ``"exit_goal"``: the current goal only where it holds the state at which the exit
+            reward was last obtained (the way to the exit from there); elsewhere an option
+            towards the goal it already is in makes no progress, and since such an option
+            always "succeeds", the reference's hindsight update keeps ``Q[g, g]`` close to the
+            row's best value, where a greedy high level can stay forever.
         eval_epsilon_high, eval_epsilon_low: exploration during evaluation (0: greedy).
         terminal_on_entry: stop the low level's bootstrap on entering its goal (the reference
             does not).
@@ -134,7 +141,9 @@ class HandcraftedConfig:
     entry_reward: str = "constant"
     reach_reward: float = 1.0
     outside_penalty: float = -0.1
+    stall_penalty: float | None = None
     reached_at_start: bool = False
+    self_target: str = "always"
     eval_epsilon_high: float = 0.0
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
@@ -333,8 +342,11 @@ def _validate_common(cfg):
     _bools(cfg, "planning", "terminal_on_entry", "reached_at_start")
     _one_of(cfg, "intrinsic", INTRINSIC_RULES)
     _one_of(cfg, "entry_reward", ENTRY_REWARDS)
+    _one_of(cfg, "self_target", SELF_TARGETS)
     if not np.isfinite(cfg.reach_reward) or not np.isfinite(cfg.outside_penalty):
         raise ValueError("reach_reward/outside_penalty: must be finite")
+    if cfg.stall_penalty is not None and not np.isfinite(cfg.stall_penalty):
+        raise ValueError(f"stall_penalty: must be None or finite, got {cfg.stall_penalty}")
     if cfg.goal_membership not in ("box", "partition"):
         raise ValueError(
             f"goal_membership: must be 'box' or 'partition', got {cfg.goal_membership!r}")
@@ -547,7 +559,11 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     def choose_goal(key, high, partition, here, epsilon):
         if config.planning:
             return hl.plan_goal(key, high.dist, high.succeeded, here, partition.count, epsilon)
-        return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break)
+        exclude = False
+        if config.self_target == "exit_goal":
+            exclude = ~(high.exit_known & (locate(partition, high.exit_state) == here))
+        return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break,
+                         exclude)
 
     def exit_goals(high, partition):
         goal = locate(partition, high.exit_state)
@@ -636,6 +652,9 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         intrinsic, inside, first_entry = intrinsic_reward(
             next_s, option.target_lo, option.target_hi, option.reached, config.reach_reward,
             config.outside_penalty, in_target, config.intrinsic, previous)
+        if config.stall_penalty is not None:
+            stalled = jnp.all(next_s == s.obs) & ~terminated
+            intrinsic = jnp.where(stalled, jnp.float32(config.stall_penalty), intrinsic)
         transition = Transition(x, action, intrinsic + reward,
                                 jnp.concatenate([next_s, goal_in]),
                                 terminated | (first_entry & config.terminal_on_entry))

@@ -67,12 +67,10 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
 
     @jax.jit
     @jax.vmap
-    def shared_updates(state, start, target, pairs, live, keys):
-        mem, f = state.memory, state.forward
-        valid = (jnp.arange(mem.capacity + 1) < mem.size) & mem.data
-        x = jnp.concatenate([mem.start, mem.target_lo, mem.target_hi], axis=-1)
-        return forward.shared_updates(f.params, f.opt_state, x, mem.end, valid, start, target,
-                                      pairs, live, keys)
+    def shared_updates(forward_state, memory, rows, seg_start, seg_len, live, keys):
+        x = jnp.concatenate([memory.start, memory.target_lo, memory.target_hi], axis=-1)
+        return forward.shared_updates(forward_state.params, forward_state.opt_state, x,
+                                      memory.end, rows, seg_start, seg_len, live, keys)
 
     @jax.jit
     @jax.vmap
@@ -121,8 +119,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         forward_params = None
         if shared:
             ready, new_forward, n_updates = _shared_step(
-                config, states, host, ok, jax.device_get(states.memory), shared_updates,
-                start_goal, target_goal, seed_keys(host["host_key"], epoch, 1))
+                config, states, host, ok, shared_updates, start_goal, target_goal,
+                seed_keys(host["host_key"], epoch, 1))
             states = states.replace(forward=new_forward)
             info["fit_updates"] = n_updates
             jobs = _choose_jobs(config, ready, steps)
@@ -292,41 +290,52 @@ def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_ke
     return np.asarray(fit.stable)[:n_jobs], jax.tree.map(lambda p: p[:n_jobs], fit.params)
 
 
-def _shared_step(config, states, host, ok, mem, shared_updates, start_goal, target_goal, keys):
+def _shared_step(config, states, host, ok, shared_updates, start_goal, target_goal, keys):
     """The reference's incremental fits: ``(ready [S, G, G], new SharedForward, n_updates)``.
 
     Every triggered pair gets one update per episode of the last epoch in which it was chosen
-    (its option-start rows carry the episode index), in episode order; a pair is ready when it
-    has ``shared_min_records`` records and its latest MSE is less than ``stable_decrease``
-    above the previous one.
+    (its option-start rows carry the episode index), in episode order; each update draws its
+    rows uniformly *with* replacement (the reference samples without; a triggered pair has
+    thousands of rows, so repeats are rare). A pair is ready when it has
+    ``shared_min_records`` records and its latest MSE is less than ``stable_decrease`` above
+    the previous one.
     """
     G = config.max_goals
     n_seeds = len(ok)
+    mem = jax.device_get(states.memory.replace(start=None, end=None, target_lo=None,
+                                               target_hi=None, reward=None))
     start_np, target_np = jax.device_get((start_goal, target_goal))
     since = np.asarray(jax.device_get(states.env_steps)) - config.steps_per_epoch
-    updates = []
+    updates, pair_ids = [], []
     for i in range(n_seeds):
+        filled = (np.arange(len(start_np[i])) < mem.size[i]) & (start_np[i] >= 0) & (
+            target_np[i] >= 0)
+        pair = np.where(filled, start_np[i].astype(np.int64) * G + target_np[i], -1)
+        pair_ids.append(pair)
         # Option choices: the count-only option-start rows of the window memory, else options.
         choices = ~mem.data[i] if config.memory == "windows" else True
-        rows = np.flatnonzero((np.arange(len(start_np[i])) < mem.size[i]) & choices
-                              & (mem.step[i] > since[i]) & (start_np[i] >= 0) & (target_np[i] >= 0))
-        pair = start_np[i][rows].astype(np.int64) * G + target_np[i][rows]
-        chosen = ok[i].reshape(-1)[pair]
+        rows = np.flatnonzero(filled & choices & (mem.step[i] > since[i]))
+        chosen = rows[ok[i].reshape(-1)[pair[rows]]]
         # Unique (episode, pair) in episode order: one update each.
-        key = np.unique(mem.episode[i][rows][chosen].astype(np.int64) * G * G + pair[chosen])
+        key = np.unique(mem.episode[i][chosen].astype(np.int64) * G * G + pair[chosen])
         updates.append(key % (G * G))
     n_max = max(len(u) for u in updates)
     if n_max == 0:
         return np.zeros_like(ok), states.forward, 0
     width = max(8, 1 << int(np.ceil(np.log2(n_max))))
-    pairs = np.zeros((n_seeds, width, 2), np.int32)
+    capacity = len(start_np[0])
+    rows = np.zeros((n_seeds, capacity), np.int32)
+    seg_start = np.zeros((n_seeds, width), np.int32)
+    seg_len = np.zeros((n_seeds, width), np.int32)
     live = np.zeros((n_seeds, width), bool)
     for i, u in enumerate(updates):
-        pairs[i, : len(u), 0], pairs[i, : len(u), 1] = u // G, u % G
+        rows[i], seg_start[i, : len(u)], seg_len[i, : len(u)] = fm.pair_segments(
+            pair_ids[i], mem.data[i] & (pair_ids[i] >= 0), u)
         live[i, : len(u)] = True
     update_keys = jax.vmap(lambda k: jax.random.split(k, width))(keys)
-    params, opt_state, mse = shared_updates(states, start_goal, target_goal, jnp.asarray(pairs),
-                                            jnp.asarray(live), update_keys)
+    params, opt_state, mse = shared_updates(
+        states.forward, states.memory, jnp.asarray(rows), jnp.asarray(seg_start),
+        jnp.asarray(seg_len), jnp.asarray(live), update_keys)
     mse = np.asarray(mse)
     records, last, prev = (np.array(host[name]) for name in ("records", "mse_last", "mse_prev"))
     for i, u in enumerate(updates):

@@ -40,115 +40,134 @@ def _variants():
     from gara_jax.agents.high_level import HighLevelConfig
     from gara_jax.algorithms import GaraConfig, HandcraftedConfig
 
-    ref = GaraConfig.reference()
-    rep = lambda **kw: dataclasses.replace(ref, **kw)
-    high = lambda **kw: dataclasses.replace(ref.high, **kw)
-    low = lambda **kw: dataclasses.replace(ref.low, **kw)
+    ref, ours = GaraConfig.reference(), GaraConfig()
+    rep = lambda cfg, **kw: dataclasses.replace(cfg, **kw)
+    high = lambda cfg, **kw: dataclasses.replace(cfg, high=dataclasses.replace(cfg.high, **kw))
+    low = lambda cfg, **kw: dataclasses.replace(cfg, low=dataclasses.replace(cfg.low, **kw))
     previous = GaraConfig(
-        memory="options", memory_capacity=10_000, tau1=0.7, tau2=0.1, small_box_c1=None,
+        memory="options", memory_capacity=10_000, forward_model="per_job", tau1=0.7, tau2=0.1,
+        small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
+        skip_unreachable=True, entry_reward="constant", goal_membership="box",
+        reached_at_start=False, stall_penalty=None,
         low=DQNConfig(loss="all_actions", buffer_size=10_000, target_update_every=200),
-        high=HighLevelConfig(epsilon_decrement=0.005))
-    fixed = rep(goal_membership="partition", reached_at_start=True)
-    nr = dataclasses.replace(fixed, relabel_replay=False)
+        high=HighLevelConfig(epsilon_decrement=0.005, tie_break="random"))
     return {
         "previous_default": ("GaraConfig() before SPEC revision 2 (session 4)", previous),
         "reference": ("GaraConfig.reference(): the authors' final maze version", ref),
         # The reference with one of its mechanisms reverted.
         "ref-options_memory": ("memory of whole options (+ hindsight copies), not windows",
-                               rep(memory="options")),
+                               rep(ref, memory="options")),
         "ref-per_job_model": ("a fresh forward model per analysis, fitted until stable",
-                              rep(forward_model="per_job")),
+                              rep(ref, forward_model="per_job")),
         "ref-thresholds_rev1": ("tau1 0.7, tau2 0.1, small boxes never reach (revision 1)",
-                                rep(tau1=0.7, tau2=0.1, small_box_c1=None)),
+                                rep(ref, tau1=0.7, tau2=0.1, small_box_c1=None)),
         "ref-no_eps_boost": ("no x1.5 epsilon boost after a split",
-                             rep(split_epsilon_boost=1.0)),
+                             rep(ref, split_epsilon_boost=1.0)),
         "ref-no_relabel": ("no hindsight relabelling of the low-level replay",
-                           rep(relabel_replay=False)),
+                           rep(ref, relabel_replay=False)),
         "ref-eps_0.005": ("high-level epsilon decrement 0.005 (results version)",
-                          rep(high=high(epsilon_decrement=0.005))),
+                          high(ref, epsilon_decrement=0.005)),
         "ref-replay_10k_target_200": ("low-level replay 10,000, target copy every 200 steps",
-                                      rep(low=low(buffer_size=10_000, target_update_every=200))),
+                                      low(ref, buffer_size=10_000, target_update_every=200)),
         "ref-q_columns_copy": ("every piece gets the split goal's Q column",
-                               rep(q_columns="copy")),
+                               rep(ref, q_columns="copy")),
         "ref-skip_unreachable": ("pairs marked unreachable are not analysed again",
-                                 rep(skip_unreachable=True)),
-        "ref-constant_entry": ("entry reward 1, not previous + 1", rep(entry_reward="constant")),
-        "ref-random_ties": ("greedy ties broken at random", rep(high=high(tie_break="random"))),
-        # Changes of ours (point 4 of the GARA issue), on the reference.
+                                 rep(ref, skip_unreachable=True)),
+        "ref-constant_entry": ("entry reward 1, not previous + 1",
+                               rep(ref, entry_reward="constant")),
+        "ref-random_ties": ("greedy high-level ties broken at random",
+                            high(ref, tie_break="random")),
+        # Changes of ours (point 4 of the GARA issue), each on the reference.
         "ref+partition_membership": ("inside the target = belongs to it (first-box rule)",
-                                     rep(goal_membership="partition")),
+                                     rep(ref, goal_membership="partition")),
         "ref+reached_at_start": ("an option starting inside its target earns no entry reward",
-                                 rep(reached_at_start=True)),
-        "ref+both": ("partition membership and reached-at-start", fixed),
-        "both+q_zero": ("ref+both, pieces' Q columns reset to 0 after a split",
-                        dataclasses.replace(fixed, q_columns="zero")),
-        "both+q_both": ("ref+both, high-level update of the reached and the targeted entry",
-                        dataclasses.replace(fixed, high=dataclasses.replace(
-                            fixed.high, q_target_entry="both"))),
-        "both+no_relabel": ("ref+both without the replay relabelling",
-                            dataclasses.replace(fixed, relabel_replay=False)),
-        "both+stall_penalty": ("ref+both, intrinsic reward -1 for a step that does not move",
-                               dataclasses.replace(fixed, stall_penalty=-1.0)),
-        "both+per_job": ("ref+both with a fresh forward model per analysis, fitted until stable",
-                         dataclasses.replace(fixed, forward_model="per_job")),
-        "both+min_steps_1000": ("ref+both, a pair is analysed after 1,000 counts (not 5,000)",
-                                dataclasses.replace(fixed, min_steps=1000)),
-        "both+every_step": ("ref+both with the every-step intrinsic reward",
-                            dataclasses.replace(fixed, intrinsic="every_step")),
-        # On ref+both without the relabelling (the change that mattered most).
-        "nr": ("ref+both, no replay relabelling", nr),
-        "nr+stall_penalty": ("nr, intrinsic reward -1 for a step that does not move",
-                             dataclasses.replace(nr, stall_penalty=-1.0)),
-        "nr+min_steps_1000": ("nr, pairs analysed after 1,000 counts",
-                              dataclasses.replace(nr, min_steps=1000)),
-        "nr+self_target_exit": ("nr, the current goal is a target only where it holds the exit",
-                                dataclasses.replace(nr, self_target="exit_goal")),
-        "nr+target_200": ("nr, low-level target network copied every 200 steps",
-                          dataclasses.replace(nr, low=dataclasses.replace(
-                              nr.low, target_update_every=200))),
-        "nr+replay_10k_target_200": ("nr, low-level replay 10,000 and target copy every 200",
-                                     dataclasses.replace(nr, low=dataclasses.replace(
-                                         nr.low, buffer_size=10_000, target_update_every=200))),
-        "nr+eps_0.005": ("nr, high-level epsilon decrement 0.005",
-                         dataclasses.replace(nr, high=dataclasses.replace(
-                             nr.high, epsilon_decrement=0.005))),
-        "nr+stall+penalty_0.01": ("nr, stall reward -1 and outside penalty -0.01 (not -0.1)",
-                                  dataclasses.replace(nr, stall_penalty=-1.0,
-                                                      outside_penalty=-0.01)),
-        "nr+penalty_0.01": ("nr, outside penalty -0.01 (not -0.1)",
-                            dataclasses.replace(nr, outside_penalty=-0.01)),
-        "nr+stall+random_ties": ("nr, stall reward -1 and random greedy ties",
-                                 dataclasses.replace(nr, stall_penalty=-1.0, high=dataclasses.replace(
-                                     nr.high, tie_break="random"))),
-        "nsr+target_200": ("nr+stall+random_ties, target network copied every 200 steps",
-                           dataclasses.replace(nr, stall_penalty=-1.0, high=dataclasses.replace(
-                               nr.high, tie_break="random"), low=dataclasses.replace(
-                               nr.low, target_update_every=200))),
-        "nsr+q_zero": ("nr+stall+random_ties, pieces' Q columns reset to 0",
-                       dataclasses.replace(nr, stall_penalty=-1.0, q_columns="zero",
-                                           high=dataclasses.replace(nr.high, tie_break="random"))),
-        "nsr+per_job": ("nr+stall+random_ties, per-job forward models",
-                        dataclasses.replace(nr, stall_penalty=-1.0, forward_model="per_job",
-                                            high=dataclasses.replace(nr.high, tie_break="random"))),
-        "nr+per_job": ("nr, a fresh forward model per analysis, fitted until stable",
-                       dataclasses.replace(nr, forward_model="per_job")),
-        "nr+q_zero": ("nr, pieces' Q columns reset to 0 after a split",
-                      dataclasses.replace(nr, q_columns="zero")),
-        "nr+random_ties": ("nr, greedy high-level ties broken at random",
-                           dataclasses.replace(nr, high=dataclasses.replace(
-                               nr.high, tie_break="random"))),
-        "default": ("GaraConfig(): this project's default", GaraConfig()),
-        "default_planning": ("GaraConfig(planning=True)", GaraConfig(planning=True)),
+                                 rep(ref, reached_at_start=True)),
+        "ref+stall_penalty": ("intrinsic reward -1 for a step after which nothing moved",
+                              rep(ref, stall_penalty=-1.0)),
+        "ref+self_target_exit": ("the current goal is a target only where it holds the exit",
+                                 rep(ref, self_target="exit_goal")),
+        "ref+q_zero": ("every piece's Q column reset to 0 after a split",
+                       rep(ref, q_columns="zero")),
+        "ref+q_both": ("high-level update of the reached and the targeted entry",
+                       high(ref, q_target_entry="both")),
+        "ref+penalty_0.01": ("outside penalty -0.01, not -0.1", rep(ref, outside_penalty=-0.01)),
+        "ref+min_steps_1000": ("pairs analysed after 1,000 counts, not 5,000",
+                               rep(ref, min_steps=1000)),
+        "ref+target_200": ("low-level target network copied every 200 steps",
+                           low(ref, target_update_every=200)),
+        # This project's default, and each of its differences from the reference reverted.
+        "default": ("GaraConfig(): this project's default", ours),
+        "default-partition_membership": ("closed-box membership (the reference)",
+                                         rep(ours, goal_membership="box")),
+        "default-reached_at_start": ("entry reward also for options starting inside",
+                                     rep(ours, reached_at_start=False)),
+        "default-stall_penalty": ("no stall penalty", rep(ours, stall_penalty=None)),
+        "default-random_ties": ("lowest-index greedy ties (the reference)",
+                                high(ours, tie_break="lowest")),
+        "default+relabel": ("with the reference's replay relabelling",
+                            rep(ours, relabel_replay=True)),
+        "default+loop_penalty": ("the stall penalty also for returning to the option's start",
+                                 rep(ours, stall_includes_loops=True)),
+        "default_planning": ("GaraConfig(planning=True)", rep(ours, planning=True)),
         "reference_planning": ("GaraConfig.reference(planning=True)",
                                GaraConfig.reference(planning=True)),
         "handcrafted": ("HandcraftedConfig()", HandcraftedConfig()),
         "handcrafted_reference": ("HandcraftedConfig.reference()", HandcraftedConfig.reference()),
         "handcrafted_previous": ("HandcraftedConfig() before SPEC revision 2 (session 4)",
-                                 HandcraftedConfig(low=previous.low, high=previous.high)),
-        "handcrafted+target_200": ("HandcraftedConfig(), target network copied every 200 steps",
-                                   HandcraftedConfig(low=dataclasses.replace(
-                                       HandcraftedConfig().low, target_update_every=200))),
+                                 HandcraftedConfig(low=previous.low, high=previous.high,
+                                                   goal_membership="box", reached_at_start=False,
+                                                   stall_penalty=None)),
+        "handcrafted-gara_changes": (
+            "HandcraftedConfig() without the agent-level changes it shares with GARA's default",
+            HandcraftedConfig(goal_membership="box", reached_at_start=False,
+                              stall_penalty=None)),
     }
+
+
+GREEDY_OUTCOMES = ("success", "stall", "self_target_loop", "loop", "other")
+
+
+def greedy_outcomes(result) -> dict:
+    """How each seed's final greedy episode ends: counts of :data:`GREEDY_OUTCOMES`.
+
+    One episode per seed from the final states (``Algorithm.greedy_rollout``, the policy the
+    greedy evaluation runs). A failed episode whose state at two decision points is exactly
+    the same is caught in a deterministic loop (ties aside): a ``stall`` if the state did not
+    change at all over the option, a ``self_target_loop`` if every decision of the loop chose
+    the goal the agent was in, else a ``loop``; ``other`` otherwise (it kept moving).
+    """
+    import jax
+
+    from gara_jax.train import compiled
+
+    alg = compiled(result.config).alg
+    if alg.greedy_rollout is None:
+        return {}
+    states = result.final.states
+    keys = jax.random.split(jax.random.key(12345), len(result.seeds))
+    rec = jax.device_get(jax.jit(jax.vmap(alg.greedy_rollout))(states, keys))
+    counts = dict.fromkeys(GREEDY_OUTCOMES, 0)
+    for i in range(len(result.seeds)):
+        if rec["success"][i]:
+            counts["success"] += 1
+            continue
+        steps = np.flatnonzero(rec["deciding"][i] & rec["live"][i])
+        obs = rec["obs"][i][steps]
+        seen, outcome = {}, "other"
+        for j, row in enumerate(map(tuple, obs)):
+            if row in seen:
+                loop = range(seen[row], j)
+                if j - seen[row] == 1 and np.all(
+                        rec["obs"][i][steps[seen[row]]: steps[j] + 1] == obs[j]):
+                    outcome = "stall"
+                elif all(rec["goal"][i][steps[m]] == rec["target"][i][steps[m]] for m in loop):
+                    outcome = "self_target_loop"
+                else:
+                    outcome = "loop"
+                break
+            seen[row] = j
+        counts[outcome] += 1
+    return counts
 
 
 def summarize_run(result, total_steps: int) -> dict:
@@ -171,6 +190,7 @@ def summarize_run(result, total_steps: int) -> dict:
         "reaches": float(per_seed("reaches")) if host else 0.0,
         "no_reach": float(per_seed("no_reach")) if host else 0.0,
         "episodes_min": int(min(n_episodes)),
+        "greedy_outcomes": greedy_outcomes(result),
         "wall_s": round(result.wall_time_s, 1),
         "host_s": round(result.host_time_s, 1),
     }
@@ -183,12 +203,15 @@ def _fmt(s: dict) -> str:
 def table(rows: dict) -> str:
     """A markdown table of the summarised variants."""
     lines = ["| variant | training, episodes 300-399 | training, last 30k steps | greedy, end "
-             "| goals | analyses | splits |", "|---|---:|---:|---:|---:|---:|---:|"]
+             "| greedy fails: stall / self-target loop / loop / other | goals | analyses "
+             "| splits |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
     for name, r in rows.items():
         s = r["summary"]
+        o = s.get("greedy_outcomes") or {}
+        fails = " / ".join(str(o.get(k, "-")) for k in GREEDY_OUTCOMES[1:])
         lines.append(f"| `{name}` | {_fmt(s['train_ep300_400'])} | {_fmt(s['train_last30k'])} | "
-                     f"{_fmt(s['greedy_end'])} | {s['goals_end']:.1f} | {s['analysed']:.1f} | "
-                     f"{s['splits']:.1f} |")
+                     f"{_fmt(s['greedy_end'])} | {fails} | {s['goals_end']:.1f} | "
+                     f"{s['analysed']:.1f} | {s['splits']:.1f} |")
     return "\n".join(lines)
 
 
@@ -264,7 +287,11 @@ def main(argv=None) -> int:
                               greedy=result.metrics["eval_success"].mean(0).tolist(),
                               train=result.metrics["train_success"].mean(0).tolist(),
                               goals=result.metrics["n_goals"].mean(0).tolist()))
-        write_json(out, dict(variants=rows))
+        # Re-read before writing, so that several processes can share one --out file.
+        on_disk = json.loads(out.read_text())["variants"] if out.exists() else {}
+        on_disk[name] = rows[name]
+        rows.update(on_disk)
+        write_json(out, dict(variants=on_disk))
         print(f"{name}: {summary} ({time.perf_counter() - t0:.0f} s)", flush=True)
     print(table({n: rows[n] for n in names if n in rows}))
     return 0

@@ -15,6 +15,8 @@ CONTRACT (agreed between the engineers building GARA/Handcrafted and HIRO; keep 
   ``config.eval_episodes`` episodes from the start, vmapped inside; jit- and vmap-able.
 - ``host_update(states, epoch) -> (states, info)``: optional host step between epochs, on the
   states batched over seeds (GARA's refinement); ``None`` for algorithms without one.
+- ``greedy_rollout(state, key) -> dict``: optional, one evaluation episode step by step (for
+  diagnostics; GARA and Handcrafted have it).
 
 Every config is a frozen dataclass with SPEC.md defaults, validated in ``__post_init__``
 (``ValueError`` naming the field), JSON-serialisable via ``dataclasses.asdict``, with at least
@@ -38,6 +40,7 @@ class Algorithm(NamedTuple):
     train_epoch: Callable
     evaluate: Callable
     host_update: Callable | None = None
+    greedy_rollout: Callable | None = None
 
 
 def epoch_metrics(stats, env_steps) -> dict:

@@ -69,6 +69,11 @@ SELF_TARGETS = ("always", "exit_goal")
 class HandcraftedConfig:
     """The two-level agent on SPEC.md's fixed 6-box U-maze partition (no refinement).
 
+    ``HandcraftedConfig()`` shares GARA's agent-level defaults (partition membership, no entry
+    reward for options starting inside their target, the stall penalty, random greedy ties;
+    see :class:`GaraConfig`), so the two differ only in their partitions, and keeps the
+    first-entry intrinsic reward; :meth:`reference` is the authors' version.
+
     Attributes:
         env: environment name (one of ``U_MAZE_ENVS``: the partitions are the U-maze's).
         k: environment steps per option (the high level decides every ``k`` steps).
@@ -93,6 +98,9 @@ class HandcraftedConfig:
             replacing the rule's value. Such a step is a fixed point of the dynamics: a
             greedy policy that takes it once takes it forever. ``None``: no special case
             (the reference).
+        stall_includes_loops: the stall penalty also applies to a step that returns the state
+            exactly to where the current option started (a deterministic loop through a wall
+            stop: a greedy policy that closes it once repeats it forever).
         reached_at_start: an option that *starts* inside its target has reached it already,
             so it earns no entry reward (only the environment's). The reference (``False``)
             pays the entry reward on the first step of every option that targets the goal it
@@ -141,13 +149,14 @@ class HandcraftedConfig:
     entry_reward: str = "constant"
     reach_reward: float = 1.0
     outside_penalty: float = -0.1
-    stall_penalty: float | None = None
-    reached_at_start: bool = False
+    stall_penalty: float | None = -1.0
+    stall_includes_loops: bool = False
+    reached_at_start: bool = True
     self_target: str = "always"
     eval_epsilon_high: float = 0.0
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
-    goal_membership: str = "box"
+    goal_membership: str = "partition"
 
     def __post_init__(self):
         _validate_common(self)
@@ -156,12 +165,13 @@ class HandcraftedConfig:
     def reference(cls, **overrides):
         """The authors' final maze version of Handcrafted (SPEC.md sections 3.2-3.3, 3.7).
 
-        Its own intrinsic reward (1 on every step inside the target, no penalty), the lowest-
-        index greedy tie-break, and the SPEC defaults the config already has (replay 100,000,
-        target copy every 20 steps, high-level epsilon decrement 0.0005). ``overrides``
-        replace fields, e.g. ``planning=True``.
+        Its own intrinsic reward (1 on every step inside the closed target box, no penalty),
+        no stall penalty, the lowest-index greedy tie-break, and the SPEC defaults the config
+        already has (replay 100,000, target copy every 20 steps, high-level epsilon decrement
+        0.0005). ``overrides`` replace fields, e.g. ``planning=True``.
         """
-        fields = dict(intrinsic="every_step", entry_reward="constant",
+        fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
+                      reached_at_start=False, stall_penalty=None, self_target="always",
                       high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
         fields.update(overrides)
         return cls(**fields)
@@ -170,6 +180,26 @@ class HandcraftedConfig:
 @dataclasses.dataclass(frozen=True)
 class GaraConfig(HandcraftedConfig):
     """GARA: the two-level agent that refines its goal partition by reachability analysis.
+
+    ``GaraConfig()`` is this project's default and :meth:`reference` the authors' final maze
+    version. The default is the reference with five changes, each measured by
+    ``python -m experiments.gara_ablation`` (README, "GARA on the U-maze"):
+
+    - ``relabel_replay=False``: no hindsight relabelling of the low-level replay after a split
+      (the reference's copies all carry reward 1, which floods the replay with "reached" for
+      whatever box a step landed in);
+    - ``goal_membership="partition"``: a state is inside the target only if it belongs to it by
+      the first-box rule, so pressing against the wall face ``x = 1`` does not "enter" the
+      right-hand box ``[1, 3] x [0, 3]``;
+    - ``reached_at_start=True``: an option that starts inside its target earns no entry
+      reward, so within the goal that holds the exit only the exit pays;
+    - ``stall_penalty=-1.0``: a step after which the state did not change at all earns -1;
+    - ``high.tie_break="random"``: greedy ties between equal Q-values broken at random, not by
+      the lowest index (a fresh table otherwise always sends the agent to goal 0).
+
+    Everything else is the reference's: sliding-window memory, shared forward model, the
+    trigger, thresholds, small-box rule, epsilon boost, Q rows copied, the DQN and high-level
+    hyper-parameters.
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
         max_goals: partition capacity; a split that would exceed it is skipped and counted.
@@ -237,11 +267,12 @@ class GaraConfig(HandcraftedConfig):
     """
 
     max_goals: int = 64  # capacity for refinement (Handcrafted needs 6)
-    memory: str = "options"
+    entry_reward: str = "previous_plus_one"
+    memory: str = "windows"
     memory_capacity: int = 50_000
     hindsight_memory: bool = True
     forward: fm.ForwardModelConfig = fm.ForwardModelConfig()
-    forward_model: str = "per_job"
+    forward_model: str = "shared"
     shared_min_records: int = 3
     min_steps: int = 5000
     tau1: float = 0.9
@@ -250,10 +281,10 @@ class GaraConfig(HandcraftedConfig):
     small_box_c1: float | None = 0.5
     refine_method: str = "crown"
     max_jobs_per_seed: int = 4
-    skip_unreachable: bool = True
-    split_epsilon_boost: float = 1.0
+    skip_unreachable: bool = False
+    split_epsilon_boost: float = 1.5
     relabel_replay: bool = False
-    q_columns: str = "copy"
+    q_columns: str = "reference"
 
     def __post_init__(self):
         super().__post_init__()
@@ -307,7 +338,8 @@ class GaraConfig(HandcraftedConfig):
             forward_model="shared", min_steps=5000, tau1=0.9, tau2=0.01, small_box_c1=0.5,
             split_epsilon_boost=1.5, relabel_replay=True, q_columns="reference",
             skip_unreachable=planning, intrinsic="first_entry", entry_reward="previous_plus_one",
-            reached_at_start=False, goal_membership="box",
+            reached_at_start=False, goal_membership="box", stall_penalty=None,
+            self_target="always",
             high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
         fields.update(overrides)
         return cls(**fields)
@@ -339,7 +371,7 @@ def _validate_common(cfg):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
     if not isinstance(cfg.high, hl.HighLevelConfig):
         raise ValueError(f"high: must be a HighLevelConfig, got {cfg.high!r}")
-    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start")
+    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start", "stall_includes_loops")
     _one_of(cfg, "intrinsic", INTRINSIC_RULES)
     _one_of(cfg, "entry_reward", ENTRY_REWARDS)
     _one_of(cfg, "self_target", SELF_TARGETS)
@@ -653,7 +685,10 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             next_s, option.target_lo, option.target_hi, option.reached, config.reach_reward,
             config.outside_penalty, in_target, config.intrinsic, previous)
         if config.stall_penalty is not None:
-            stalled = jnp.all(next_s == s.obs) & ~terminated
+            stalled = jnp.all(next_s == s.obs)
+            if config.stall_includes_loops:
+                stalled = stalled | jnp.all(next_s == option.start_obs)
+            stalled = stalled & ~terminated
             intrinsic = jnp.where(stalled, jnp.float32(config.stall_penalty), intrinsic)
         transition = Transition(x, action, intrinsic + reward,
                                 jnp.concatenate([next_s, goal_in]),
@@ -742,47 +777,50 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     # -- greedy evaluation -------------------------------------------------------------------
 
 
-    def evaluate(state: GaraState, key):
-        """Greedy high and low levels, ``eval_episodes`` episodes from the start."""
+    def greedy_rollout(state: GaraState, key):
+        """One evaluation episode from the start, step by step: ``obs [T, D]`` (the state before
+        each step), ``goal``/``target [T]`` (goal holding it, target in force), ``deciding [T]``
+        (a new option starts), ``live [T]`` (the episode is still running) and ``success``."""
         partition, high = state.partition, state.high
         params = state.dqn.params
+        k_reset, k_run = jax.random.split(key)
+        obs, env_state = env.reset(k_reset, env_params)
+        carry = dict(obs=obs, env_state=env_state, target=jnp.int32(0), steps=jnp.int32(0),
+                     done=jnp.asarray(False), success=jnp.asarray(False),
+                     ret=jnp.float32(0.0))
 
-        def episode(key):
-            k_reset, k_run = jax.random.split(key)
-            obs, env_state = env.reset(k_reset, env_params)
-            carry = dict(obs=obs, env_state=env_state, lo=jnp.zeros(dim), hi=jnp.zeros(dim),
-                         steps=jnp.int32(0), done=jnp.asarray(False),
-                         success=jnp.asarray(False), ret=jnp.float32(0.0))
+        def one(c, key):
+            deciding = c["steps"] == 0
+            k_goal, k_explore, k_random = jax.random.split(key, 3)
+            here = locate(partition, c["obs"])
+            chosen = choose_goal(k_goal, high, partition, here, config.eval_epsilon_high)
+            target = jnp.where(deciding, chosen, c["target"])
+            x = jnp.concatenate([c["obs"], partition.lo[target], partition.hi[target]])
+            action = jnp.argmax(dqn.q_values(params, x)).astype(jnp.int32)
+            if config.eval_epsilon_low > 0:
+                explore = jax.random.uniform(k_explore) < config.eval_epsilon_low
+                action = jnp.where(explore, jax.random.randint(k_random, (), 0, 4), action)
+            obs, env_state, reward, term, trunc, _ = env.step(
+                key, c["env_state"], action, env_params)
+            live = ~c["done"]
+            keep = lambda new, old: jnp.where(live, new, old)
+            record = dict(obs=c["obs"], goal=here, target=target, deciding=deciding, live=live)
+            return dict(
+                obs=keep(obs, c["obs"]),
+                env_state=jax.tree.map(keep, env_state, c["env_state"]),
+                target=target, steps=(c["steps"] + 1) % config.k,
+                done=c["done"] | term | trunc, success=c["success"] | (live & term),
+                ret=c["ret"] + jnp.where(live, reward, 0.0)), record
 
-            def one(c, key):
-                deciding = c["steps"] == 0
-                k_goal, k_explore, k_random = jax.random.split(key, 3)
-                goal = choose_goal(k_goal, high, partition, locate(partition, c["obs"]),
-                                   config.eval_epsilon_high)
-                lo = jnp.where(deciding, partition.lo[goal], c["lo"])
-                hi = jnp.where(deciding, partition.hi[goal], c["hi"])
-                x = jnp.concatenate([c["obs"], lo, hi])
-                action = jnp.argmax(dqn.q_values(params, x)).astype(jnp.int32)
-                if config.eval_epsilon_low > 0:
-                    explore = jax.random.uniform(k_explore) < config.eval_epsilon_low
-                    action = jnp.where(explore, jax.random.randint(k_random, (), 0, 4), action)
-                obs, env_state, reward, term, trunc, _ = env.step(
-                    key, c["env_state"], action, env_params)
-                live = ~c["done"]
-                keep = lambda new, old: jnp.where(live, new, old)
-                return dict(
-                    obs=keep(obs, c["obs"]),
-                    env_state=jax.tree.map(keep, env_state, c["env_state"]),
-                    lo=lo, hi=hi, steps=(c["steps"] + 1) % config.k,
-                    done=c["done"] | term | trunc, success=c["success"] | (live & term),
-                    ret=c["ret"] + jnp.where(live, reward, 0.0)), None
+        c, records = jax.lax.scan(one, carry, jax.random.split(k_run, max_steps))
+        return dict(records, success=c["success"], ret=c["ret"])
 
-            c, _ = jax.lax.scan(one, carry, jax.random.split(k_run, max_steps))
-            return c["success"], c["ret"]
-
-        success, ret = jax.vmap(episode)(jax.random.split(key, config.eval_episodes))
-        return {"eval_success": jnp.mean(success.astype(jnp.float32)),
-                "eval_return": jnp.mean(ret)}
+    def evaluate(state: GaraState, key):
+        """Greedy high and low levels, ``eval_episodes`` episodes from the start."""
+        out = jax.vmap(lambda k: greedy_rollout(state, k))(
+            jax.random.split(key, config.eval_episodes))
+        return {"eval_success": jnp.mean(out["success"].astype(jnp.float32)),
+                "eval_return": jnp.mean(out["ret"])}
 
     host_update = None
     if refining:
@@ -790,6 +828,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
 
         host_update = make_host_update(config, locate, exit_goals, dqn, forward)
     return Algorithm(name=algorithm_name(config), config=config, init=init,
-                     train_epoch=train_epoch, evaluate=evaluate, host_update=host_update)
+                     train_epoch=train_epoch, evaluate=evaluate, host_update=host_update,
+                     greedy_rollout=greedy_rollout)
 
 

@@ -127,14 +127,42 @@ def _variants():
 GREEDY_OUTCOMES = ("success", "stall", "self_target_loop", "loop", "other")
 
 
+def classify_episode(obs, goal, target, deciding, live, success) -> str:
+    """One of :data:`GREEDY_OUTCOMES` for a greedy episode's per-step records.
+
+    A failed episode whose state at two decision points is exactly the same is caught in a
+    deterministic loop (ties aside): a ``stall`` if the state did not change at all over the
+    option, a ``self_target_loop`` if every decision of the loop chose the goal the agent was
+    in, else a ``loop``; ``other`` otherwise (it kept moving).
+
+    Example:
+        >>> import numpy as np
+        >>> obs = np.zeros((6, 2)); on = np.ones(6, bool)
+        >>> classify_episode(obs, np.zeros(6), np.ones(6), on, on, False)
+        'stall'
+    """
+    if success:
+        return "success"
+    steps = np.flatnonzero(np.asarray(deciding) & np.asarray(live))
+    points = np.asarray(obs)[steps]
+    seen = {}
+    for j, row in enumerate(map(tuple, points)):
+        if row in seen:
+            first = seen[row]
+            if j - first == 1 and np.all(np.asarray(obs)[steps[first]: steps[j] + 1] == points[j]):
+                return "stall"
+            if all(goal[steps[m]] == target[steps[m]] for m in range(first, j)):
+                return "self_target_loop"
+            return "loop"
+        seen[row] = j
+    return "other"
+
+
 def greedy_outcomes(result) -> dict:
     """How each seed's final greedy episode ends: counts of :data:`GREEDY_OUTCOMES`.
 
     One episode per seed from the final states (``Algorithm.greedy_rollout``, the policy the
-    greedy evaluation runs). A failed episode whose state at two decision points is exactly
-    the same is caught in a deterministic loop (ties aside): a ``stall`` if the state did not
-    change at all over the option, a ``self_target_loop`` if every decision of the loop chose
-    the goal the agent was in, else a ``loop``; ``other`` otherwise (it kept moving).
+    greedy evaluation runs), classified by :func:`classify_episode`.
     """
     import jax
 
@@ -143,30 +171,12 @@ def greedy_outcomes(result) -> dict:
     alg = compiled(result.config).alg
     if alg.greedy_rollout is None:
         return {}
-    states = result.final.states
     keys = jax.random.split(jax.random.key(12345), len(result.seeds))
-    rec = jax.device_get(jax.jit(jax.vmap(alg.greedy_rollout))(states, keys))
+    rec = jax.device_get(jax.jit(jax.vmap(alg.greedy_rollout))(result.final.states, keys))
     counts = dict.fromkeys(GREEDY_OUTCOMES, 0)
     for i in range(len(result.seeds)):
-        if rec["success"][i]:
-            counts["success"] += 1
-            continue
-        steps = np.flatnonzero(rec["deciding"][i] & rec["live"][i])
-        obs = rec["obs"][i][steps]
-        seen, outcome = {}, "other"
-        for j, row in enumerate(map(tuple, obs)):
-            if row in seen:
-                loop = range(seen[row], j)
-                if j - seen[row] == 1 and np.all(
-                        rec["obs"][i][steps[seen[row]]: steps[j] + 1] == obs[j]):
-                    outcome = "stall"
-                elif all(rec["goal"][i][steps[m]] == rec["target"][i][steps[m]] for m in loop):
-                    outcome = "self_target_loop"
-                else:
-                    outcome = "loop"
-                break
-            seen[row] = j
-        counts[outcome] += 1
+        counts[classify_episode(rec["obs"][i], rec["goal"][i], rec["target"][i],
+                                rec["deciding"][i], rec["live"][i], rec["success"][i])] += 1
     return counts
 
 

@@ -49,7 +49,8 @@ def test_reference_presets_hold_spec_revision_2():
     ("memory", "episodes"), ("forward_model", "global"), ("small_box_c1", 1.5),
     ("split_epsilon_boost", 0.5), ("relabel_replay", "yes"), ("q_columns", "rows"),
     ("skip_unreachable", None), ("shared_min_records", 0), ("intrinsic", "dense"),
-    ("entry_reward", "double"), ("reached_at_start", 0)])
+    ("entry_reward", "double"), ("reached_at_start", 0), ("stall_includes_loops", 1),
+    ("self_target", "never"), ("stall_penalty", float("nan"))])
 def test_new_options_are_validated(field, value):
     with pytest.raises(ValueError, match=field):
         GaraConfig(**{field: value})
@@ -245,7 +246,8 @@ def _crafted_host_state(cfg, rows=600):
 
 HOST_CFG = dict(steps_per_epoch=100, eval_episodes=1, min_steps=100, memory_capacity=1024,
                 max_goals=16, low=LOW, refine_method="ibp", tau1=0.9, tau2=0.01,
-                small_box_c1=0.5, forward=fm.ForwardModelConfig(max_epochs=200))
+                small_box_c1=0.5, forward=fm.ForwardModelConfig(max_epochs=200),
+                memory="options", forward_model="per_job")
 
 
 def test_host_step_splits_boosts_epsilon_and_relabels_the_replay():
@@ -273,14 +275,14 @@ def test_host_step_splits_boosts_epsilon_and_relabels_the_replay():
     right = np.concatenate([lo[1], hi[1]])
     np.testing.assert_array_equal(buf.experience.next_obs[0, 0, 3, 4:], right)
     # Without the boost and relabelling the same split leaves epsilon and the replay alone.
-    plain = GaraConfig(**HOST_CFG)
+    plain = GaraConfig(**HOST_CFG, split_epsilon_boost=1.0, relabel_replay=False)
     new2, info2 = make_algorithm(plain).host_update(_crafted_host_state(plain), epoch=0)
     assert info2["splits"] == 1 and float(new2.high.epsilon[0]) == pytest.approx(0.4)
     assert int(new2.dqn.buffer.current_index[0]) == 2
 
 
 def test_shared_forward_model_needs_records_before_an_analysis():
-    cfg = GaraConfig(**HOST_CFG, forward_model="shared", shared_min_records=3)
+    cfg = GaraConfig(**dict(HOST_CFG, forward_model="shared"), shared_min_records=3)
     alg = make_algorithm(cfg)
     states = _crafted_host_state(cfg)
     before = jax.device_get(states.forward.params)
@@ -350,7 +352,7 @@ def test_stall_penalty_replaces_the_reward_of_steps_that_do_not_move():
     assert 0 < stalled.sum() < len(stalled)  # random actions from rest press on bounds
     np.testing.assert_allclose(t["reward"][stalled], -1.0)
     assert np.all(t["reward"][~stalled] > -1.0)
-    plain = _replay_after_one_epoch()
+    plain = _replay_after_one_epoch(stall_penalty=None)
     stalled = np.all(plain["obs"][:, :4] == plain["next_obs"][:, :4], axis=1)
     assert np.all(plain["reward"][stalled] > -1.0)
 
@@ -365,7 +367,9 @@ def test_reached_at_start_pays_no_entry_reward_to_options_starting_inside():
         stay = goal_left & inside(t["obs"][:, :4]) & inside(t["next_obs"][:, :4])
         return int(np.sum(stay & (t["reward"] >= 0.9))), int(stay.sum())
 
-    with_flag, n = entries_inside_left(_replay_after_one_epoch(reached_at_start=True))
+    with_flag, n = entries_inside_left(_replay_after_one_epoch(reached_at_start=True,
+                                                              goal_membership="box"))
     assert with_flag == 0 and n > 0
-    without, _ = entries_inside_left(_replay_after_one_epoch())
+    without, _ = entries_inside_left(_replay_after_one_epoch(reached_at_start=False,
+                                                            goal_membership="box"))
     assert without > 0  # the first step of every such option earns the entry reward

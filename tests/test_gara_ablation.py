@@ -1,0 +1,71 @@
+"""The GARA ablation script: variants, the greedy-episode classification, a tiny run."""
+
+import json
+
+import numpy as np
+import pytest
+
+from experiments import gara_ablation as ab
+
+
+def test_every_variant_builds_and_the_default_differs_from_the_reference_as_documented():
+    variants = ab._variants()
+    assert {"reference", "default", "previous_default", "handcrafted"} <= set(variants)
+    assert all(isinstance(desc, str) and desc for desc, _ in variants.values())
+    ref, ours = variants["reference"][1], variants["default"][1]
+    differ = {f for f in ("goal_membership", "reached_at_start", "stall_penalty",
+                          "relabel_replay") if getattr(ref, f) != getattr(ours, f)}
+    assert differ == {"goal_membership", "reached_at_start", "stall_penalty", "relabel_replay"}
+    assert (ref.high.tie_break, ours.high.tie_break) == ("lowest", "random")
+    assert ref.memory == ours.memory == "windows"
+
+
+def _records(points, k=2):
+    """Per-step records of an episode whose decision points (every k steps) visit ``points``."""
+    obs = np.repeat(np.asarray(points, float), k, axis=0)
+    n = len(obs)
+    deciding = np.arange(n) % k == 0
+    return obs, np.ones(n, bool), deciding
+
+
+def test_classify_episode_by_hand():
+    obs, live, deciding = _records([[0, 0], [0, 0]])
+    goal, target = np.zeros(len(obs)), np.ones(len(obs))
+    assert ab.classify_episode(obs, goal, target, deciding, live, False) == "stall"
+    assert ab.classify_episode(obs, goal, target, deciding, live, True) == "success"
+    obs, live, deciding = _records([[0, 0], [1, 0], [0, 0]])
+    obs[1] = [0.5, 0]  # moving within the options
+    assert ab.classify_episode(obs, goal, target, deciding, live, False) == "loop"
+    assert ab.classify_episode(obs, goal, goal, deciding, live, False) == "self_target_loop"
+    obs, live, deciding = _records([[0, 0], [1, 0], [2, 0]])
+    assert ab.classify_episode(obs, goal, target, deciding, live, False) == "other"
+    # Decision points after the episode ended do not count.
+    obs, live, deciding = _records([[0, 0], [1, 0], [0, 0]])
+    live[4:] = False
+    assert ab.classify_episode(obs, goal, target, deciding, live, False) == "other"
+
+
+def test_a_tiny_ablation_run_writes_its_json(tmp_path, capsys):
+    out = tmp_path / "abl.json"
+    assert ab.main(["--variants", "handcrafted", "--seeds", "2", "--steps", "3000",
+                    "--out", str(out), "--no-progress"]) == 0
+    row = json.loads(out.read_text())["variants"]["handcrafted"]
+    s = row["summary"]
+    assert row["seeds"] == 2 and row["steps"] == 3000
+    assert s["train_last30k"]["n"] == 2 and 0.0 <= s["train_last30k"]["mean"] <= 1.0
+    assert s["train_ep300_400"]["n"] == 0  # 3,000 steps hold fewer than 300 episodes
+    assert sum(s["greedy_outcomes"].values()) == 2
+    assert "| `handcrafted` |" in capsys.readouterr().out
+    # Already there with the same seeds and steps: not run again.
+    assert ab.main(["--variants", "handcrafted", "--seeds", "2", "--steps", "3000",
+                    "--out", str(out), "--no-progress"]) == 0
+
+
+@pytest.mark.parametrize("argv", [["--variants", "nope"], ["--seeds", "0"]])
+def test_bad_arguments_fail_with_exit_2(argv, tmp_path):
+    argv = argv + ["--out", str(tmp_path / "x.json"), "--no-progress"]
+    try:
+        code = ab.main(argv)
+    except SystemExit as stop:
+        code = stop.code
+    assert code == 2 and not (tmp_path / "x.json").exists()

@@ -54,12 +54,17 @@ NEAR_WALL_TOL = 1e-5  # float32 wall stops may land a rounding error off the fac
 
 
 def run_config(name: str, planning: bool, refine_method: str, goal_membership: str = "box"):
-    """The ``GaraConfig`` of a run (the controls only switch the trigger off)."""
+    """The ``GaraConfig`` of a run (the controls only switch the trigger off).
+
+    The option counts below read a memory of whole options, so the runs keep
+    ``memory="options"`` (the memory of the defaults before SPEC.md revision 2); for today's
+    defaults and the reference see ``experiments.gara_ablation``.
+    """
     from gara_jax import GaraConfig
 
     min_steps = GaraConfig().min_steps if name == "gara" else NO_REFINEMENT
     return GaraConfig(planning=planning, refine_method=refine_method, min_steps=min_steps,
-                      goal_membership=goal_membership)
+                      goal_membership=goal_membership, memory="options")
 
 
 def initial_loop(name: str, config, seeds):

@@ -96,8 +96,9 @@ class HandcraftedConfig:
         stall_penalty: if not ``None``, the intrinsic reward of a step after which the state
             is exactly unchanged (the agent pressed against a wall or a bound at rest),
             replacing the rule's value. Such a step is a fixed point of the dynamics: a
-            greedy policy that takes it once takes it forever. ``None``: no special case
-            (the reference).
+            greedy policy that takes it once takes it forever. It is also the "previous
+            step's value" that ``entry_reward="previous_plus_one"`` adds to. ``None``: no
+            special case (the reference).
         stall_includes_loops: the stall penalty also applies to a step that returns the state
             exactly to where the current option started (a deterministic loop through a wall
             stop: a greedy policy that closes it once repeats it forever).

@@ -114,44 +114,35 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         ok &= live_goals[:, :, None] & live_goals[:, None, :]
         info["triggered"] = int(ok.sum())
 
-        # 2. Forward models; the pairs whose model is ready for analysis.
+        # 2. Forward models; the jobs whose model is ready for analysis, and its parameters.
         t_fit = time.perf_counter()
-        forward_params = None
         if shared:
-            ready, new_forward, n_updates = _shared_step(
+            ready, new_forward, info["fit_updates"] = _shared_step(
                 config, states, host, ok, shared_updates, start_goal, target_goal,
                 seed_keys(host["host_key"], epoch, 1))
             states = states.replace(forward=new_forward)
-            info["fit_updates"] = n_updates
             jobs = _choose_jobs(config, ready, steps)
-            forward_params = states.forward.params
-            per_job = None
+            seeds_idx = np.asarray([i for i, _, _ in jobs], int)
+            job_params = jax.tree.map(lambda p: jnp.asarray(p)[seeds_idx], new_forward.params)
         else:
             jobs = _choose_jobs(config, ok, steps)
-            per_job = _fit_per_job(config, forward, states, jobs, start_goal, target_goal,
-                                   host["host_key"], epoch) if jobs else None
+            if jobs:
+                stable, fit_params = _fit_per_job(config, forward, states, jobs, start_goal,
+                                                  target_goal, host["host_key"], epoch)
+                keep = np.flatnonzero(stable)
+                jobs = [jobs[j] for j in keep]
+                job_params = jax.tree.map(lambda p: p[keep], fit_params)
         info["fit_s"] = time.perf_counter() - t_fit
-        if per_job is not None:
-            stable, fit_params = per_job
-            jobs = [job for job, ok_j in zip(jobs, stable, strict=True) if ok_j]
-            info["stable"] = len(jobs)
-            chosen_params = jax.tree.map(
-                lambda p: p[np.flatnonzero(stable)], fit_params)
-        else:
-            info["stable"] = len(jobs)
-            chosen_params = None
+        info["stable"] = len(jobs)
         if not jobs:
             info["host_s"] = time.perf_counter() - t0
             return states, info
 
         # 3. One batched reachability analysis for every job.
         t_ref = time.perf_counter()
-        if chosen_params is None:
-            seeds_idx = np.asarray([i for i, _, _ in jobs])
-            chosen_params = jax.tree.map(lambda p: jnp.asarray(p)[seeds_idx], forward_params)
         lo, hi = host["lo"], host["hi"]
         results = reach.refine_many(
-            mlp_layers(chosen_params),
+            mlp_layers(job_params),
             np.stack([lo[i][s] for i, s, _ in jobs]), np.stack([hi[i][s] for i, s, _ in jobs]),
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,

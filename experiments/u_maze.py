@@ -1,12 +1,26 @@
 """Reproduce the paper's U-maze study: 20-run success curves and GARA's learned partition.
 
-Trains GARA (Q-learning and Planning high levels), Handcrafted and HIRO, all seeds of a method
-vmapped in one process, and writes to ``--out``:
+By default trains ``gara`` and ``gara_planning`` (``GaraConfig()``, Q-learning and Planning
+high levels), ``gara_reference`` (``GaraConfig.reference()``, the authors' version),
+``handcrafted`` and ``hiro_paper`` (``HiroConfig.paper()``, the HIRO baseline the paper ran);
+``--methods all`` adds ``hiro`` (HIRO as published). All seeds of a method are vmapped in one
+process. Two diagnostic methods can be named explicitly: ``hiro_paper_standard_target`` (the
+paper's HIRO with its reward-less critic target fixed) and ``hiro_paper_full_range`` (its actor
+output scaled to the whole goal box). Writes to ``--out``:
 
-- ``metrics.csv``: method, seed, env step, eval success, training success, goals, return;
-- ``summary.json``: per method final success (mean, 95% CI), steps to 50% / 80%, wall time;
-- ``success_curve.png``: seed-mean greedy success with 95% confidence bands;
-- ``partitions.png``: one GARA seed's partition at 0, 10^3, 3x10^4 steps and at the end;
+- ``metrics.csv``: method, seed, env step, eval success, training success, goals, return
+  (one row per seed and epoch);
+- ``episodes.csv``: method, seed, episode, end step, length, success (every training episode);
+- ``summary.json``: per method the greedy success at the end (``final_success_mean`` /
+  ``final_success_ci95``), the paper's training-episode success over the episodes that ended
+  in the last 30,000 steps (``final_train_success_mean`` / ``final_train_success_ci95``) and
+  over episodes 300-399 (``train_success_ep300_400``: mean, ci95, seeds with such episodes),
+  steps to 50% / 80% greedy success, goals, wall time;
+- ``success_curve.png``: (a) training-episode success by episode index (first 400 episodes,
+  30-episode moving average), (b) the same by environment steps, (c) greedy success by
+  steps; seed means with 95% confidence bands;
+- ``partitions_<method>.png`` for every GARA method run: one seed's partition at 0, 10^3,
+  3x10^4 steps and at the end (the seed rule: :func:`partition_seed`);
 - ``config.json``: everything needed to rerun (the full config of every method).
 
 A checkpoint is written after every epoch under ``--out/checkpoints``; ``--resume`` continues
@@ -32,7 +46,14 @@ from pathlib import Path
 
 import numpy as np
 
-METHODS = ("gara", "gara_planning", "handcrafted", "hiro")
+DEFAULT_METHODS = ("gara", "gara_planning", "gara_reference", "handcrafted", "hiro_paper")
+ALL_METHODS = (*DEFAULT_METHODS, "hiro")  # --methods all
+DIAGNOSTIC_METHODS = ("hiro_paper_standard_target", "hiro_paper_full_range")
+METHODS = (*ALL_METHODS, *DIAGNOSTIC_METHODS)
+GARA_METHODS = ("gara", "gara_planning", "gara_reference")
+LAST_STEPS = 30_000  # the final training success counts the episodes ending in these steps
+EPISODE_WINDOW = (300, 400)  # the last quarter of the reference's 400-episode run
+CURVE_EPISODES, CURVE_WINDOW = 400, 30  # the paper's curve: 400 episodes, 30-episode average
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
 ENVS = ("u_maze", "point_u_maze")  # the U-maze environments the partitions are defined for
 ENV_TITLES = {"u_maze": "the U-shaped maze", "point_u_maze": "the U-shaped maze (brax ball)"}
@@ -49,11 +70,18 @@ class UsageError(Exception):
 def method_config(method: str, *, env: str = "u_maze", steps_per_epoch: int | None = None,
                   eval_episodes: int | None = None):
     """The default config of ``method`` (SPEC.md defaults), with optional epoch overrides."""
+    from gara_jax.agents.td3 import DDPG_PAPER
     from gara_jax.algorithms import GaraConfig, HandcraftedConfig, HiroConfig
 
+    paper_high = lambda **kw: lambda **o: HiroConfig.paper(  # noqa: E731
+        high=dataclasses.replace(DDPG_PAPER, **kw), **o)
     factories = {"gara": lambda **kw: GaraConfig(planning=False, **kw),
                  "gara_planning": lambda **kw: GaraConfig(planning=True, **kw),
-                 "handcrafted": HandcraftedConfig, "hiro": HiroConfig}
+                 "gara_reference": lambda **kw: GaraConfig.reference(planning=False, **kw),
+                 "handcrafted": HandcraftedConfig, "hiro_paper": HiroConfig.paper,
+                 "hiro": HiroConfig,
+                 "hiro_paper_standard_target": paper_high(critic_target="standard"),
+                 "hiro_paper_full_range": paper_high(actor_output="box")}
     overrides = {"env": env}
     if steps_per_epoch is not None:
         overrides["steps_per_epoch"] = steps_per_epoch
@@ -67,8 +95,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", type=int, default=None, help="seeds per method (default 20)")
     p.add_argument("--steps", type=int, default=None,
                    help="environment steps per seed (default 120000, rounded up to epochs)")
-    p.add_argument("--methods", default=",".join(METHODS),
-                   help=f"comma-separated subset of {','.join(METHODS)}")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
+                   help=f"comma-separated subset of {','.join(METHODS)}, or 'all' "
+                        f"(the default and hiro; default: {','.join(DEFAULT_METHODS)})")
     p.add_argument("--env", default="u_maze", choices=ENVS,
                    help="u_maze (kinematic, the paper's) or point_u_maze (brax rigid body)")
     p.add_argument("--out", default=None, help="output directory (default results/ENV)")
@@ -106,10 +135,12 @@ def parse_args(argv=None) -> argparse.Namespace:
 def validate(args) -> list[str]:
     """Check arguments before any work; returns the method list. Raises :class:`UsageError`."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    if methods == ["all"]:
+        methods = list(ALL_METHODS)
     unknown = [m for m in methods if m not in METHODS]
     if not methods or unknown:
         raise UsageError(f"--methods: unknown method(s) {unknown or [args.methods]}; "
-                         f"choose from {', '.join(METHODS)}")
+                         f"choose from {', '.join(METHODS)}, or all")
     if len(set(methods)) != len(methods):
         raise UsageError(f"--methods: repeated method in {args.methods!r}")
     if args.seeds < 1:
@@ -161,16 +192,20 @@ class _Progress:
 
 def run_method(method, args, ckpt_dir: Path) -> dict:
     """Train one method on all seeds (resuming from its checkpoint if asked); returns its record:
-    ``metrics`` (name -> [n_seeds, n_epochs] lists), ``snapshots`` (seed 0), ``wall_time_s``."""
+    ``metrics`` (name -> [n_epochs][n_seeds] lists), ``episodes`` (field -> per-seed lists of
+    every training episode), ``snapshots`` (per seed: the partition at step 0 and after every
+    epoch that changed it) and ``wall_time_s``."""
     from gara_jax import checkpoint
-    from gara_jax.train import init_loop, n_epochs_for, train_epochs
+    from gara_jax.train import EPISODE_FIELDS, init_loop, n_epochs_for, train_epochs
 
     config = method_config(method, env=args.env, steps_per_epoch=args.steps_per_epoch,
                            eval_episodes=args.eval_episodes)
     n_epochs = n_epochs_for(config, args.steps)
     path = ckpt_dir / f"{method}.npz"
     loop = init_loop(config, args.seeds)
-    record = {"metrics": {}, "snapshots": _seed0_snapshots(loop.states, 0), "wall_time_s": 0.0}
+    record = {"metrics": {}, "episodes": {f: [[] for _ in range(args.seeds)]
+                                          for f in EPISODE_FIELDS},
+              "snapshots": _initial_snapshots(loop.states, args.seeds), "wall_time_s": 0.0}
     if args.resume and path.exists():
         loop, record = checkpoint.load(path, loop)
     progress = _Progress(method, args.seeds, n_epochs, loop.epoch, config.steps_per_epoch,
@@ -180,8 +215,12 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
         for out in train_epochs(config, args.seeds, args.steps, init_state=loop):
             for k, v in out.metrics.items():
                 record["metrics"].setdefault(k, []).append(np.asarray(v).tolist())
-            if out.snapshots and out.snapshots[0]:
-                record["snapshots"].extend(_snap_json(s) for s in out.snapshots[0])
+            if out.episodes is not None:
+                for f in EPISODE_FIELDS:
+                    for i, values in enumerate(out.episodes[f]):
+                        record["episodes"][f][i].extend(np.asarray(values).tolist())
+            for i, snaps in enumerate(out.snapshots):
+                record["snapshots"][i].extend(_snap_json(s) for s in snaps)
             record["wall_time_s"] = base_wall + time.perf_counter() - t0
             checkpoint.save(path, out.loop, record)
             progress.update(out)
@@ -195,13 +234,13 @@ def _snap_json(s) -> dict:
             "hi": np.asarray(s.hi).tolist()}
 
 
-def _seed0_snapshots(states, step) -> list:
+def _initial_snapshots(states, n_seeds) -> list:
     part = getattr(states, "partition", None)
     if part is None:
-        return []
-    n = int(part.count[0])
-    return [{"step": step, "count": n, "lo": np.asarray(part.lo[0][:n]).tolist(),
-             "hi": np.asarray(part.hi[0][:n]).tolist()}]
+        return [[] for _ in range(n_seeds)]
+    lo, hi, count = (np.asarray(x) for x in (part.lo, part.hi, part.count))
+    return [[{"step": 0, "count": int(count[i]), "lo": lo[i][: count[i]].tolist(),
+              "hi": hi[i][: count[i]].tolist()}] for i in range(n_seeds)]
 
 
 def _as_array_metrics(record) -> dict:
@@ -209,40 +248,111 @@ def _as_array_metrics(record) -> dict:
     return {k: np.asarray(v).T for k, v in record["metrics"].items()}
 
 
+def _episodes(record) -> dict:
+    return {f: [np.asarray(v, np.int64) for v in per_seed]
+            for f, per_seed in record["episodes"].items()}
+
+
+def summarize_method(record, total_steps: int) -> dict:
+    """``summary.json``'s entry for one method: the greedy fields of
+    :func:`gara_jax.results.summarize` and the paper's training-episode success."""
+    from gara_jax import results
+
+    metrics, episodes = _as_array_metrics(record), _episodes(record)
+    summary = results.summarize(metrics, record["wall_time_s"])
+    last = results.ci_summary(results.per_seed_success_after(
+        episodes, max(total_steps - LAST_STEPS, 0)))
+    window = results.ci_summary(results.per_seed_episode_success(episodes, *EPISODE_WINDOW))
+    summary.update({
+        "final_train_success_mean": last["mean"],
+        "final_train_success_ci95": last["ci95"],
+        "train_success_ep300_400": window,
+        "episodes_mean": float(np.mean([len(s) for s in episodes["success"]])),
+    })
+    return summary
+
+
+def partition_seed(record) -> tuple[int, str]:
+    """The seed (row index) drawn in the partition figure, and the rule, in words.
+
+    The rule: among the seeds whose greedy evaluation succeeds at the end (success >= 0.5),
+    the one whose final goal count is their median (the lower median; of several seeds with
+    that count, the first); if none succeeds, the same over all seeds.
+
+    Example:
+        >>> rec = {"metrics": {"eval_success": [[1.0, 0.0, 1.0, 1.0]],
+        ...                    "n_goals": [[5, 9, 3, 4]]}}
+        >>> partition_seed(rec)[0]
+        3
+    """
+    metrics = _as_array_metrics(record)
+    success, goals = metrics["eval_success"][:, -1], metrics["n_goals"][:, -1]
+    pool = np.flatnonzero(success >= 0.5)
+    rule = "the successful seed with the median final goal count"
+    if pool.size == 0:
+        pool, rule = np.arange(len(success)), "no seed succeeds: the median final goal count"
+    median = sorted(goals[pool])[(len(pool) - 1) // 2]
+    return int(min(i for i in pool if goals[i] == median)), rule
+
+
+def partition_at(snaps, step):
+    """The partition in effect at ``step``: the last snapshot taken at or before it.
+
+    The partition changes only in the host step between epochs (a snapshot is taken after
+    each one that changed it), so inside an epoch it is the one the epoch started with: the
+    panel at 1,000 steps, inside the first 3,000-step epoch, is exact.
+    """
+    return [s for s in snaps if s["step"] <= step][-1]
+
+
 def write_outputs(out: Path, methods, records, run_cfg, seeds) -> dict:
     """Write the result files (each atomically) and return the summary."""
     import envs
     from gara_jax import plots, results
 
-    summary, rows, curves = {}, [], {}
+    summary, rows, episode_rows = {}, [], []
+    by_episode, by_step, greedy = {}, {}, {}
     for m in methods:
-        metrics = _as_array_metrics(records[m])
-        summary[m] = results.summarize(metrics, records[m]["wall_time_s"])
+        metrics, episodes = _as_array_metrics(records[m]), _episodes(records[m])
+        summary[m] = summarize_method(records[m], run_cfg["steps"])
         rows.extend(results.metrics_rows(m, metrics, seeds))
-        curves[m] = (metrics["env_steps"][0], metrics["eval_success"])
+        episode_rows.extend(results.episode_rows(m, episodes, seeds))
+        steps = metrics["env_steps"][0]
+        label = f"{m} ({len(seeds)} seeds)"
+        mean, ci = results.episode_success_curve(episodes, CURVE_EPISODES, CURVE_WINDOW)
+        by_episode[label] = (np.arange(1, len(mean) + 1), mean, ci)
+        by_step[label] = (steps, *results.step_success_curve(
+            episodes, steps, window_steps=int(steps[0])))
+        greedy[label] = (steps, *results.mean_ci95(metrics["eval_success"], axis=0))
     results.write_metrics_csv(out / "metrics.csv", rows)
+    results.write_episodes_csv(out / "episodes.csv", episode_rows)
     results.write_json(out / "summary.json", summary)
-    _atomic_png(out / "success_curve.png",
-                lambda p: plots.plot_success_curves(
-                    curves, p, title=f"Average success rate on {ENV_TITLES[run_cfg['env']]} "
-                                     f"({len(seeds)} runs)"))
-    gara = next((m for m in ("gara", "gara_planning") if m in methods), None)
-    if gara is not None:
-        snaps = records[gara]["snapshots"]
-        end = int(np.asarray(records[gara]["metrics"]["env_steps"])[-1][0])
-        panels = [_latest_at(snaps, s) for s in (*PARTITION_STEPS, end)]
-        _, params = envs.make(run_cfg["env"])
-        _atomic_png(out / "partitions.png", lambda p: plots.plot_partitions(
-            [(s["step"], np.asarray(s["lo"]), np.asarray(s["hi"]), s["count"]) for s in panels],
-            params, p, suptitle=f"{gara}, seed {seeds[0]}: partition at or before 0, 1e3, "
-                                f"3e4 steps and at the end ({end:,})"))
+    env_title = ENV_TITLES[run_cfg["env"]]
+    epoch = int(by_step[next(iter(by_step))][0][0])
+    panels = [
+        (f"(a) training episodes ({CURVE_WINDOW}-episode moving average)", "training episode",
+         "success rate", by_episode),
+        (f"(b) training episodes (ended in the last {epoch:,} steps)", "environment steps",
+         "success rate", by_step),
+        ("(c) greedy evaluation (both levels greedy)", "environment steps", "success rate",
+         greedy),
+    ]
+    _atomic_png(out / "success_curve.png", lambda p: plots.plot_curve_panels(
+        panels, p, suptitle=f"Average success rate on {env_title} ({len(seeds)} runs, "
+                            "mean and 95% CI over seeds)"))
+    _, params = envs.make(run_cfg["env"])
+    for m in (m for m in methods if m in GARA_METHODS):
+        row, rule = partition_seed(records[m])
+        snaps = records[m]["snapshots"][row]
+        end = int(np.asarray(records[m]["metrics"]["env_steps"])[-1][row])
+        shown = [(t, partition_at(snaps, t)) for t in (*PARTITION_STEPS, end) if t <= end]
+        _atomic_png(out / f"partitions_{m}.png", lambda p, m=m, row=row, rule=rule, shown=shown:
+                    plots.plot_partitions(
+                        [(t, np.asarray(s["lo"]), np.asarray(s["hi"]), s["count"])
+                         for t, s in shown], params, p,
+                        suptitle=f"{m}, seed {seeds[row]} ({rule})"))
     results.write_json(out / "config.json", run_cfg)
     return summary
-
-
-def _latest_at(snaps, step):
-    """The last snapshot taken at or before ``step`` (snapshots are taken between epochs)."""
-    return [s for s in snaps if s["step"] <= step][-1]
 
 
 def _atomic_png(path: Path, draw) -> None:
@@ -291,15 +401,26 @@ def run(args: argparse.Namespace) -> int:
               f"{args.out}", file=sys.stderr)
         return 130
     summary = write_outputs(out, methods, records, run_cfg, seeds)
-    print(f"\nwrote {out}/metrics.csv, summary.json, success_curve.png"
-          f"{', partitions.png' if any(m.startswith('gara') for m in methods) else ''}, "
-          f"config.json  ({time.perf_counter() - t0:.0f} s)")
-    print(f"{'method':>14} {'final success':>16} {'steps to 50%':>13} {'steps to 80%':>13} "
-          f"{'wall s':>8}")
-    for m, s in summary.items():
-        print(f"{m:>14} {s['final_success_mean']:>8.2f} ± {s['final_success_ci95']:<5.2f} "
-              f"{str(s['steps_to_50']):>13} {str(s['steps_to_80']):>13} {s['wall_time_s']:>8.1f}")
+    figures = [f"partitions_{m}.png" for m in methods if m in GARA_METHODS]
+    print(f"\nwrote {out}/: metrics.csv, episodes.csv, summary.json, success_curve.png, "
+          f"{''.join(f + ', ' for f in figures)}config.json  "
+          f"({time.perf_counter() - t0:.0f} s)")
+    print(print_table(summary))
     return 0
+
+
+def print_table(summary) -> str:
+    """The summary as a markdown table (training and greedy success with 95% CIs)."""
+    fmt = lambda mean, ci: "-" if mean is None else f"{mean:.2f} ± {ci:.2f}"  # noqa: E731
+    lines = ["| method | training, last 30k steps | training, episodes 300-399 | "
+             "greedy, end | goals | wall s |", "|---|---:|---:|---:|---:|---:|"]
+    for m, s in summary.items():
+        w = s["train_success_ep300_400"]
+        lines.append(f"| {m} | {fmt(s['final_train_success_mean'], s['final_train_success_ci95'])}"
+                     f" | {fmt(w['mean'], w['ci95'])} | "
+                     f"{fmt(s['final_success_mean'], s['final_success_ci95'])} | "
+                     f"{s['final_n_goals_mean']:.1f} | {s['wall_time_s']:.0f} |")
+    return "\n".join(lines)
 
 
 if __name__ == "__main__":

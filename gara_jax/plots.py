@@ -49,6 +49,40 @@ def plot_success_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], pat
     plt.close(fig)
 
 
+def plot_curve_panels(panels, path, suptitle: str = "") -> None:
+    """Side-by-side panels of seed-mean curves with 95% CI bands.
+
+    ``panels`` is a list of ``(title, xlabel, ylabel, curves)``; ``curves`` maps a label to
+    ``(x [T], mean [T], ci95 [T])`` (``nan`` points are not drawn). Every panel shares the
+    success axis [0, 1] and one legend.
+
+    Example:
+        >>> import tempfile, os
+        >>> c = {"m": (np.arange(3), np.array([0.0, 0.5, 1.0]), np.full(3, 0.1))}
+        >>> plot_curve_panels([("a", "x", "y", c)], os.path.join(tempfile.mkdtemp(), "p.png"))
+    """
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.0 * len(panels), 4.2), dpi=130,
+                             squeeze=False)
+    colors = {}
+    for ax, (title, xlabel, ylabel, curves) in zip(axes[0], panels, strict=True):
+        for label, (x, mean, ci) in curves.items():
+            mean, ci = np.asarray(mean, np.float64), np.asarray(ci, np.float64)
+            line, = ax.plot(x, mean, label=label, color=colors.get(label), linewidth=1.6)
+            colors[label] = line.get_color()
+            ax.fill_between(x, np.clip(mean - ci, 0, 1), np.clip(mean + ci, 0, 1),
+                            color=line.get_color(), alpha=0.18, linewidth=0)
+        ax.set(title=title, xlabel=xlabel, ylabel=ylabel, ylim=(-0.02, 1.02))
+        ax.grid(alpha=0.3)
+    handles, labels = axes[0][0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=min(len(labels), 4), fontsize=9,
+               frameon=False)
+    if suptitle:
+        fig.suptitle(suptitle, fontsize=11)
+    fig.tight_layout(rect=(0, 0.1, 1, 1))
+    fig.savefig(path)
+    plt.close(fig)
+
+
 def _velocity_arrow(lo: float, hi: float, eps: float = 1e-6) -> str:
     """Arrow glyph for one velocity component's range: '' when unsplit, '+', '-', or '±'."""
     if lo <= _VEL_FULL[0] + eps and hi >= _VEL_FULL[1] - eps:
@@ -108,7 +142,7 @@ def plot_partitions(snapshots: Sequence[tuple[int, np.ndarray, np.ndarray, int]]
     fig, axes = plt.subplots(1, k, figsize=(3.2 * k, 3.6), dpi=120, squeeze=False)
     for ax, (step, lo, hi, count) in zip(axes[0], snapshots, strict=True):
         draw_partition(ax, lo, hi, int(count), env_params,
-                       title=f"after {int(step):,} steps ({int(count)} goals)")
+                       title=f"at {int(step):,} steps ({int(count)} goals)")
     if suptitle:
         fig.suptitle(suptitle, fontsize=10)
     fig.tight_layout()

@@ -202,6 +202,26 @@ def metrics_rows(method: str, metrics: Mapping[str, np.ndarray], seeds):
                    int(metrics["n_goals"][i, e]), float(metrics["episode_return"][i, e]))
 
 
+EPISODE_CSV_COLUMNS = ("method", "seed", "episode", "end_step", "length", "success")
+
+
+def episode_rows(method: str, episodes, seeds):
+    """One ``episodes.csv`` row per training episode (:data:`EPISODE_CSV_COLUMNS` order;
+    episodes numbered from 0 per seed).
+
+    Example:
+        >>> eps = {"success": [np.array([0, 1])], "length": [np.array([300, 40])],
+        ...        "end_step": [np.array([300, 340])]}
+        >>> list(episode_rows("m", eps, [7]))
+        [('m', 7, 0, 300, 300, 0), ('m', 7, 1, 340, 40, 1)]
+    """
+    for i, seed in enumerate(seeds):
+        for e, (end, length, success) in enumerate(zip(
+                episodes["end_step"][i], episodes["length"][i], episodes["success"][i],
+                strict=True)):
+            yield (method, int(seed), e, int(end), int(length), int(success))
+
+
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write ``data`` to ``path`` through a temporary file and a rename: readers see the old
     file or the complete new one, never a half-written one."""
@@ -220,15 +240,25 @@ def write_json(path, obj) -> None:
     atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=False) + "\n").encode())
 
 
-def write_metrics_csv(path, rows) -> None:
-    """Write ``rows`` (tuples in :data:`CSV_COLUMNS` order) with a header, atomically."""
+def write_csv(path, columns, rows) -> None:
+    """Write ``rows`` (tuples in ``columns`` order) with a header line, atomically."""
     import io
 
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(CSV_COLUMNS)
+    writer.writerow(columns)
     writer.writerows(rows)
     atomic_write_bytes(path, buf.getvalue().encode())
+
+
+def write_metrics_csv(path, rows) -> None:
+    """Write ``rows`` (tuples in :data:`CSV_COLUMNS` order) with a header, atomically."""
+    write_csv(path, CSV_COLUMNS, rows)
+
+
+def write_episodes_csv(path, rows) -> None:
+    """Write ``rows`` (tuples in :data:`EPISODE_CSV_COLUMNS` order), atomically."""
+    write_csv(path, EPISODE_CSV_COLUMNS, rows)
 
 
 def read_metrics_csv(path) -> list[dict]:

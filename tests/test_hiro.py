@@ -295,6 +295,11 @@ def test_end_to_end_two_seeds_two_epochs(tiny):
     states, history, evaluation = run(0)
     for epoch, metrics in enumerate(history):
         assert CONTRACT_KEYS <= set(metrics)
+        metrics = dict(metrics)
+        log = metrics.pop("episode_log")  # per step, as GARA's (base.epoch_metrics)
+        for name, value in log.items():
+            assert value.shape == (2, 100), name
+        np.testing.assert_array_equal(log["ended"].sum(axis=1), metrics["episodes_ended"])
         for name, value in metrics.items():
             assert value.shape == (2,), name
             assert bool(jnp.all(jnp.isfinite(value))), name
@@ -334,8 +339,7 @@ def test_same_key_same_metrics_and_different_key_differs(tiny):
     _, h2, e2 = run(0)
     _, h3, _ = run(1)
     for a, b in zip(h1, h2, strict=True):
-        for name in a:
-            np.testing.assert_array_equal(a[name], b[name], err_msg=name)
+        jax.tree.map(np.testing.assert_array_equal, a, b)
     for name in e1:
         np.testing.assert_array_equal(e1[name], e2[name])
     assert not np.array_equal(h1[1]["intrinsic_reward"], h3[1]["intrinsic_reward"])
@@ -365,3 +369,103 @@ def test_delayed_actor_steps_follow_the_block_schedule(delay):
     assert changed(new.high.critic_target, state.high.critic_target) == (actor_steps > 0)
     # Adam's step count is the number of actor steps taken.
     assert int(jax.tree.leaves(new.high.actor_opt)[0]) == actor_steps
+
+
+# ------------------------------------------------------------------------------------------------
+# The GARA authors' HIRO baseline (SPEC.md 3.7): HiroConfig.paper()
+# ------------------------------------------------------------------------------------------------
+
+
+def test_paper_preset_is_spec_3_7():
+    cfg = HiroConfig.paper()
+    h = cfg.high
+    assert (cfg.goal_space, cfg.relabel, cfg.goal_noise, cfg.high_reward_scale, cfg.k) == (
+        "absolute", False, 0.1, 1.0, 5)
+    assert (h.actor_hidden, h.critic_hidden, h.actor_lr, h.critic_lr, h.gamma, h.batch_size,
+            h.tau, h.buffer_size) == ((16, 32), (16, 32), 5e-4, 1e-3, 0.99, 32, 0.05, 20_000)
+    assert (h.twin_critics, h.policy_delay, h.policy_noise, h.critic_target, h.actor_output) == (
+        False, 1, 0.0, "reward_less", "tanh_clipped")
+    assert cfg.low == DQNConfig() and cfg.low.td_target_clip == 1.0
+    json.dumps(dataclasses.asdict(cfg))
+    with pytest.raises(ValueError, match="^relabel:"):
+        HiroConfig(goal_space="absolute")
+    with pytest.raises(ValueError, match="^goal_space:"):
+        HiroConfig(goal_space="polar")
+    for field, value in (("critic_target", "no_reward"), ("actor_output", "sigmoid")):
+        with pytest.raises(ValueError, match=f"^{field}:"):
+            TD3Config(**{field: value})
+
+
+@pytest.mark.parametrize("critic_target", ["reward_less", "standard"])
+def test_ddpg_critic_step_regresses_on_the_hand_computed_target(critic_target):
+    # One critic, no target smoothing: the loss of a critic step is mean (Q(s,a) - y)^2 with
+    # y = r + g Q'(s', mu'(s')) (standard) or g Q'(s', mu'(s')) (reward-less) where not done,
+    # y = r where done. A non-terminal reward makes the two differ.
+    cfg = TD3Config(actor_hidden=(8,), critic_hidden=(8,), policy_noise=0.0, noise_clip=0.0,
+                    policy_delay=1, batch_size=4, learning_starts=4, buffer_size=8,
+                    twin_critics=False, critic_target=critic_target, gamma=0.9,
+                    actor_output="tanh_clipped")
+    td3 = make_td3(cfg, obs_dim=2, act_dim=2, act_low=jnp.array([0.0, -1.0]),
+                   act_high=jnp.array([3.0, 1.0]))
+    state = td3.init(jax.random.key(0))
+    obs = jnp.array([[0.0, 0.0], [1.0, 2.0], [3.0, 0.5], [2.0, 2.0]])
+    next_obs = obs[::-1] + 0.25
+    batch = Batch(obs, jnp.array([[0.5, 0.0], [1.0, 0.2], [0.0, -0.5], [0.9, 0.9]]),
+                  jnp.array([2.0, 0.0, 10.0, -1.0]), next_obs,
+                  jnp.array([False, False, True, False]))
+    (q_next,) = td3.q_values(state.critic_target, next_obs,
+                             td3.policy(state.actor_target, next_obs))
+    q_next = np.asarray(q_next, np.float64)
+    r, done = np.asarray(batch.reward, np.float64), np.asarray(batch.done)
+    targets = {"standard": np.where(done, r, r + 0.9 * q_next),
+               "reward_less": np.where(done, r, 0.9 * q_next)}
+    assert targets["standard"][0] != targets["reward_less"][0]
+    want = targets[critic_target]
+    (q,) = td3.q_values(state.critic_params, obs, batch.action)
+    _, loss = td3.critic_update(state, batch, jax.random.key(1))
+    np.testing.assert_allclose(float(loss), np.mean((np.asarray(q, np.float64) - want) ** 2),
+                               rtol=1e-5)
+    # The tanh-clipped actor never proposes outside [0, 1] x [-1, 1] (the box is [0,3]x[-1,1]).
+    a = td3.policy(state.actor_params, jax.random.normal(jax.random.key(2), (256, 2)) * 50)
+    assert bool(jnp.all((a[:, 0] >= 0) & (a[:, 0] <= 1) & (jnp.abs(a[:, 1]) <= 1)))
+
+
+TINY_PAPER = HiroConfig.paper(
+    steps_per_epoch=100, eval_episodes=2,
+    low=DQNConfig(batch_size=8, learning_starts=32, buffer_size=256),
+    high=dataclasses.replace(HiroConfig.paper().high, batch_size=8, learning_starts=8,
+                             buffer_size=128))
+
+
+def test_paper_hiro_trains_end_to_end_with_fixed_absolute_goals():
+    from gara_jax.agents.dqn import stored_in_age_order
+
+    algo = make_hiro(TINY_PAPER)
+    keys = jax.random.split(jax.random.key(0), 2)
+    states = jax.jit(jax.vmap(algo.init))(keys)
+    train = jax.jit(jax.vmap(algo.train_epoch))
+    for epoch in range(2):
+        states, metrics = train(states, jax.random.split(jax.random.fold_in(keys[0], epoch), 2))
+    assert bool(jnp.all(metrics["critic_loss"] > 0)) and bool(jnp.all(metrics["low_loss"] > 0))
+    evaluation = jax.jit(jax.vmap(algo.evaluate))(states, keys)
+    assert bool(jnp.all((evaluation["eval_success"] >= 0) & (evaluation["eval_success"] <= 1)))
+    # Seed 0's high-level replay: 40 options, goals inside the observation bounds with
+    # positions in [0, 1] up to the 0.1 exploration noise.
+    replay = jax.tree.map(lambda x: np.asarray(x[0]), states.replay)
+    goals = replay.data.goal[: int(replay.size)]
+    assert int(replay.size) == 40
+    assert np.all(goals[:, :2] >= 0) and np.all(goals[:, :2] <= 1.0 + 5 * 0.1)
+    assert np.all(np.abs(goals[:, 2:]) <= 1.0)
+    # Seed 0's low-level replay: the goal half of the input stays fixed through a transition
+    # and the reward is -||g - s'||.
+    buffer = jax.tree.map(lambda x: x[0], states.low.buffer)
+    rows, valid = stored_in_age_order(buffer)
+    exp = jax.tree.map(lambda x: np.asarray(x[0][np.asarray(rows)[np.asarray(valid)]]),
+                       buffer.experience)
+    assert len(exp.reward) == 200
+    np.testing.assert_array_equal(exp.obs[:, 4:], exp.next_obs[:, 4:])
+    np.testing.assert_allclose(
+        exp.reward, -np.linalg.norm(exp.obs[:, 4:] - exp.next_obs[:, :4], axis=-1), rtol=1e-5)
+    # Goals change only at option boundaries (every k = 5 steps; no episode ended).
+    changes = np.flatnonzero(np.any(np.diff(exp.obs[:, 4:], axis=0) != 0, axis=1)) + 1
+    assert set(changes) <= set(range(0, 200, 5)) and len(changes) >= 30

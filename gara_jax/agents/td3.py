@@ -10,11 +10,18 @@ Defaults are HIRO's (Nachum et al., 2018) higher-level TD3 settings: 300-300 ReL
 critics, Adam 1e-4 (actor) / 1e-3 (critics), gamma 0.99, soft target updates tau = 0.005, target
 policy smoothing noise 0.2 clipped at 0.5, actor and targets updated every 2nd critic update,
 batch 100, replay 200,000.
+
+Three options turn the same learner into the DDPG high level of the GARA authors' HIRO baseline
+(SPEC.md 3.7; :data:`DDPG_PAPER` sets all of them with that baseline's sizes and rates):
+``twin_critics=False`` (one critic, no clipped double Q), ``critic_target="reward_less"`` (their
+TD target) and ``actor_output="tanh_clipped"`` (their actor output range); with
+``policy_noise=0`` and ``policy_delay=1`` the update is plain DDPG.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import Any, NamedTuple
 
 import flax.linen as nn
@@ -48,6 +55,14 @@ class TD3Config:
     batch_size: int = 100
     buffer_size: int = 200_000
     learning_starts: int = 300  # transitions stored before the first update
+    twin_critics: bool = True  # False: one critic (DDPG), no clipped double Q
+    # "standard": r + gamma (1 - done) Q'(s', mu'(s')). "reward_less": the GARA authors' DDPG,
+    # gamma Q'(s', mu'(s')) on non-terminal transitions (the reward is left out) and r on
+    # terminal ones; identical wherever only terminal transitions carry a reward.
+    critic_target: str = "standard"
+    # "box": mid + half * tanh(net), the whole action box. "tanh_clipped": the GARA authors'
+    # DDPG, tanh(net) in [-1, 1] clipped to the box, so the policy only reaches box ∩ [-1, 1].
+    actor_output: str = "box"
 
     def __post_init__(self):
         for name in ("actor_hidden", "critic_hidden"):
@@ -65,14 +80,49 @@ class TD3Config:
         for name in ("policy_noise", "noise_clip"):
             if not getattr(self, name) >= 0.0:
                 raise ValueError(f"{name}: must be >= 0, got {getattr(self, name)}")
+        if self.critic_target not in ("standard", "reward_less"):
+            raise ValueError("critic_target: must be 'standard' or 'reward_less', "
+                             f"got {self.critic_target!r}")
+        if self.actor_output not in ("box", "tanh_clipped"):
+            raise ValueError("actor_output: must be 'box' or 'tanh_clipped', "
+                             f"got {self.actor_output!r}")
         if not self.batch_size <= self.learning_starts < self.buffer_size:
             raise ValueError(
                 "learning_starts: must lie in [batch_size, buffer_size), "
                 f"got {self.learning_starts}")
 
 
+# The DDPG high level of the GARA authors' HIRO baseline (SPEC.md 3.7): 16-32 ReLU actor and
+# critic, tanh actor output clipped to the goal box, Adam 5e-4 / 1e-3, gamma 0.99, soft target
+# rate 0.05, batch 32, replay 20,000, their reward-less critic target. SPEC.md gives no warm-up;
+# updates start once a batch is stored.
+DDPG_PAPER = TD3Config(
+    actor_hidden=(16, 32), critic_hidden=(16, 32), actor_lr=5e-4, critic_lr=1e-3, gamma=0.99,
+    tau=0.05, policy_noise=0.0, noise_clip=0.0, policy_delay=1, batch_size=32,
+    buffer_size=20_000, learning_starts=32, twin_critics=False, critic_target="reward_less",
+    actor_output="tanh_clipped")
+
 # A batch (or one) of transitions for :func:`TD3.update`: the same fields as the DQN's.
 Batch = Transition
+
+
+def td_target(config: TD3Config, reward, done, next_q):
+    """The critic's TD target from ``next_q = Q'(s', mu'(s'))`` (the minimum over the twin
+    critics where there are two), as ``config.critic_target`` defines it.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> r, d, q = jnp.array([1.0, 10.0]), jnp.array([False, True]), jnp.array([5.0, 5.0])
+        >>> td_target(TD3Config(gamma=0.5), r, d, q).tolist()
+        [3.5, 10.0]
+        >>> td_target(TD3Config(gamma=0.5, critic_target="reward_less"), r, d, q).tolist()
+        [2.5, 10.0]
+    """
+    done = jnp.asarray(done, bool)
+    bootstrap = config.gamma * next_q
+    if config.critic_target == "reward_less":
+        return jnp.where(done, reward, bootstrap)
+    return reward + jnp.where(done, 0.0, bootstrap)
 
 
 @struct.dataclass
@@ -86,15 +136,16 @@ class TD3State:
     updates: jnp.ndarray  # critic updates taken so far
 
 
-class TwinCritic(nn.Module):
-    """Two independent Q networks on ``obs ‖ action``; returns ``(q1, q2)``."""
+class Critics(nn.Module):
+    """``n`` independent Q networks on ``obs ‖ action``; returns a tuple of ``n`` values."""
 
     hidden: tuple[int, ...]
+    n: int = 2
 
     @nn.compact
     def __call__(self, obs, action):
         x = jnp.concatenate([obs, action], axis=-1)
-        return MLP(self.hidden, 1)(x)[..., 0], MLP(self.hidden, 1)(x)[..., 0]
+        return tuple(MLP(self.hidden, 1)(x)[..., 0] for _ in range(self.n))
 
 
 class TD3(NamedTuple):
@@ -111,7 +162,8 @@ class TD3(NamedTuple):
       update): the two halves of ``update``, for callers that schedule the delayed actor step
       themselves (under ``vmap`` the ``cond`` in ``update`` has a per-seed predicate, so it
       becomes a select that computes the actor step on every call).
-    - ``q_values(critic_params, obs, action) -> (q1, q2)``, ``policy(actor_params, obs)``.
+    - ``q_values(critic_params, obs, action) -> (q1, q2)`` (``(q,)`` with one critic),
+      ``policy(actor_params, obs)``.
     """
 
     init: Any
@@ -148,13 +200,16 @@ def make_td3(config: TD3Config, obs_dim: int, act_dim: int, act_low, act_high) -
     mid, half = (high + low) / 2.0, (high - low) / 2.0
 
     actor_net = MLP(config.actor_hidden, act_dim)
-    critic_net = TwinCritic(config.critic_hidden)
+    critic_net = Critics(config.critic_hidden, 2 if config.twin_critics else 1)
     actor_opt = optax.adam(config.actor_lr)
     critic_opt = optax.adam(config.critic_lr)
 
     def policy(actor_params, obs):
+        out = jnp.tanh(actor_net.apply(actor_params, obs))
+        if config.actor_output == "tanh_clipped":
+            return jnp.clip(out, low, high)
         # tanh squashing keeps the deterministic policy inside the box without clipping.
-        return mid + half * jnp.tanh(actor_net.apply(actor_params, obs))
+        return mid + half * out
 
     def q_values(critic_params, obs, action):
         return critic_net.apply(critic_params, obs, action)
@@ -183,16 +238,15 @@ def make_td3(config: TD3Config, obs_dim: int, act_dim: int, act_low, act_high) -
         noise = jnp.clip(config.policy_noise * jax.random.normal(key, batch.action.shape),
                          -config.noise_clip, config.noise_clip) * half
         next_action = jnp.clip(policy(state.actor_target, batch.next_obs) + noise, low, high)
-        q1_next, q2_next = q_values(state.critic_target, batch.next_obs, next_action)
-        not_done = 1.0 - batch.done.astype(q1_next.dtype)
         # Clipped double Q: the minimum of the twin targets counters overestimation.
-        target = batch.reward + config.gamma * not_done * jnp.minimum(q1_next, q2_next)
-        target = jax.lax.stop_gradient(target)
-        q1, q2 = q_values(critic_params, batch.obs, batch.action)
-        return jnp.mean((q1 - target) ** 2) + jnp.mean((q2 - target) ** 2)
+        next_q = functools.reduce(
+            jnp.minimum, q_values(state.critic_target, batch.next_obs, next_action))
+        target = jax.lax.stop_gradient(td_target(config, batch.reward, batch.done, next_q))
+        return sum(jnp.mean((q - target) ** 2)
+                   for q in q_values(critic_params, batch.obs, batch.action))
 
     def actor_loss(actor_params, critic_params, obs):
-        q1, _ = q_values(critic_params, obs, policy(actor_params, obs))
+        q1 = q_values(critic_params, obs, policy(actor_params, obs))[0]
         return -jnp.mean(q1)
 
     def actor_step(state: TD3State, obs):

@@ -1,5 +1,10 @@
 """HIRO (Nachum et al., 2018): raw states as goals, a TD3 high level with off-policy relabelling.
 
+Two versions behind one config: ``HiroConfig()`` is HIRO as published (relative goals, goal
+transition, TD3, off-policy correction); ``HiroConfig.paper()`` is the baseline the GARA
+authors ran (SPEC.md 3.7: absolute goals, a small DDPG high level, no goal transition, no
+correction), each of its differences a named option.
+
 Read top to bottom: config, the goal helpers (transition, intrinsic reward, relabelling), then
 ``make_hiro`` with ``init`` / ``train_epoch`` / ``evaluate`` (the contract of ``base.py``).
 
@@ -49,6 +54,7 @@ from flax import struct
 import envs
 from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
 from gara_jax.agents.td3 import (
+    DDPG_PAPER,
     Batch,
     Replay,
     TD3Config,
@@ -58,7 +64,7 @@ from gara_jax.agents.td3 import (
     replay_init,
     replay_sample,
 )
-from gara_jax.algorithms.base import Algorithm
+from gara_jax.algorithms.base import Algorithm, epoch_metrics
 
 # ------------------------------------------------------------------------------------------------
 # Config
@@ -76,10 +82,18 @@ HIRO_LOW = DQNConfig(td_target_clip=1e6, buffer_size=10_000, target_update_every
 class HiroConfig:
     """HIRO on a maze. The TD3 settings (``high``) and the relabelling are the HIRO paper's.
 
-    Goals are relative, in the box ``[-goal_high, goal_high]`` with ``goal_high =
-    (P, P, V, V)``: ``P`` (``goal_position_range``, default the maze size ``n``) bounds position
-    changes, since no move inside ``[0, n]`` is longer; ``V = goal_velocity_range`` = 2 bounds
-    velocity changes, since velocities lie in ``[-1, 1]``.
+    ``goal_space="relative"`` (HIRO): a goal is a desired change of state, in the box
+    ``[-goal_high, goal_high]`` with ``goal_high = (P, P, V, V)``: ``P``
+    (``goal_position_range``, default the maze size ``n``) bounds position changes, since no
+    move inside ``[0, n]`` is longer; ``V = goal_velocity_range`` = 2 bounds velocity changes,
+    since velocities lie in ``[-1, 1]``. The goal follows the state (``g' = s + g - s'``) and the
+    low level is rewarded ``-||s + g - s'||``.
+    ``goal_space="absolute"`` (the GARA authors' baseline): a goal is a state, in the
+    observation bounds ``[0, n]^2 x [-1, 1]^2``; it stays fixed for the ``k`` steps of an option
+    and the low level is rewarded ``-||g - s'||``. HIRO's off-policy correction is defined for
+    relative goals only, so it needs ``relabel=False``.
+
+    :meth:`paper` returns the GARA authors' version (SPEC.md 3.7).
 
     Example:
         >>> HiroConfig().k, HiroConfig().high.batch_size
@@ -105,6 +119,30 @@ class HiroConfig:
     relabel_candidates: int = 10  # original goal, s_{t+k} - s_t and 8 samples around the latter
     relabel_sigma: float = 0.5  # std of those samples, as a fraction of the goal half-range
     relabel_temperature: float = 1.0  # Boltzmann temperature of the low level's Q-values
+    goal_space: str = "relative"  # or "absolute" (see above)
+
+    @classmethod
+    def paper(cls, **overrides) -> HiroConfig:
+        """The HIRO baseline as the GARA authors ran it (SPEC.md 3.7), ``overrides`` on top.
+
+        Absolute goals, clipped to the observation bounds; the DDPG high level
+        :data:`~gara_jax.agents.td3.DDPG_PAPER` (16-32 networks, their reward-less critic
+        target: ``high=dataclasses.replace(DDPG_PAPER, critic_target="standard")`` turns that
+        bug off; their actor's tanh output is clipped to the goal box, so proposed goal
+        positions lie in ``[0, 1]^2`` plus the exploration noise, while the exit is at
+        ``(3, 0)``; ``actor_output="box"`` scales it to the whole box instead); exploration
+        noise 0.1; the environment reward unscaled; the low level is the GARA agents' DQN
+        (``DQNConfig()``: the [-1, 1] TD-target clip, replay 100,000, target copy every 20
+        steps); no goal transition, no off-policy correction.
+
+        Example:
+            >>> cfg = HiroConfig.paper()
+            >>> cfg.goal_space, cfg.high.critic_target, cfg.high.actor_hidden, cfg.relabel
+            ('absolute', 'reward_less', (16, 32), False)
+        """
+        base = dict(goal_space="absolute", relabel=False, high=DDPG_PAPER, low=DQNConfig(),
+                    goal_noise=0.1, high_reward_scale=1.0)
+        return cls(**(base | overrides))
 
     def __post_init__(self):
         if self.env not in envs.ENV_NAMES:
@@ -132,6 +170,12 @@ class HiroConfig:
         for name in ("high_reward_scale", "low_reward_scale"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}: must be finite, got {getattr(self, name)}")
+        if self.goal_space not in ("relative", "absolute"):
+            raise ValueError(f"goal_space: must be 'relative' or 'absolute', got "
+                             f"{self.goal_space!r}")
+        if self.goal_space == "absolute" and self.relabel:
+            raise ValueError("relabel: HIRO's off-policy correction is defined for relative "
+                             "goals; use relabel=False with goal_space='absolute'")
         if not isinstance(self.relabel_candidates, int) or self.relabel_candidates < 2:
             raise ValueError(
                 "relabel_candidates: must be >= 2 (the original goal and s_{t+k} - s_t), "
@@ -286,6 +330,7 @@ class HiroState:
     goal: jnp.ndarray  # the low level's current relative goal
     option: Option
     episode_return: jnp.ndarray
+    episode_length: jnp.ndarray
     env_steps: jnp.ndarray
 
 
@@ -304,18 +349,37 @@ def make_hiro(config: HiroConfig) -> Algorithm:
     """HIRO as an :class:`~gara_jax.algorithms.base.Algorithm` (see the module docstring).
 
     ``train_epoch`` also reports ``low_loss``, ``critic_loss``, ``relabel_kept`` (fraction of
-    sampled goals the relabelling left unchanged), ``goal_distance`` (mean ``||s + g - s'||``
+    sampled goals the relabelling left unchanged), ``goal_distance`` (mean distance to the target
     left when an option ends) and ``intrinsic_reward`` (mean per step).
     """
     env, env_params = envs.make(config.env)
     obs_dim, k = 4, config.k
     max_steps = int(env_params.max_steps)
-    position_range = config.goal_position_range or float(env_params.n)
-    goal_high = jnp.array([position_range] * 2 + [config.goal_velocity_range] * 2, jnp.float32)
-    goal_low = -goal_high
+    relative = config.goal_space == "relative"
+    if relative:
+        position_range = config.goal_position_range or float(env_params.n)
+        goal_high = jnp.array([position_range] * 2 + [config.goal_velocity_range] * 2,
+                              jnp.float32)
+        goal_low = -goal_high
+    else:  # the observation bounds
+        n = float(env_params.n)
+        goal_low = jnp.array([0.0, 0.0, -1.0, -1.0], jnp.float32)
+        goal_high = jnp.array([n, n, 1.0, 1.0], jnp.float32)
+    # Warm-up goals are drawn from what the actor can propose.
+    if config.high.actor_output == "tanh_clipped":
+        warm_low, warm_high = jnp.maximum(goal_low, -1.0), jnp.minimum(goal_high, 1.0)
+    else:
+        warm_low, warm_high = goal_low, goal_high
     dqn = make_dqn(config.low, 2 * obs_dim, env.num_actions)
     td3 = make_td3(config.high, obs_dim, obs_dim, goal_low, goal_high)
     n_blocks = config.steps_per_epoch // k
+
+    def target_of(obs, goal):
+        """The state the low level is asked to reach."""
+        return obs + goal if relative else goal
+
+    def next_goal_of(obs, goal, next_obs):
+        return goal_transition(obs, goal, next_obs) if relative else goal
 
     def init(key) -> HiroState:
         k_low, k_high, k_env = jax.random.split(key, 3)
@@ -328,12 +392,13 @@ def make_hiro(config: HiroConfig) -> Algorithm:
         return HiroState(low=dqn.init(k_low), high=td3.init(k_high),
                          replay=replay_init(example, config.high.buffer_size),
                          env_state=env_state, obs=obs, goal=zeros, option=option,
-                         episode_return=jnp.float32(0), env_steps=jnp.int32(0))
+                         episode_return=jnp.float32(0), episode_length=jnp.int32(0),
+                         env_steps=jnp.int32(0))
 
     def propose_goal(state: HiroState, key):
         # Uniform goals while the high level warms up (TD3's start phase), then actor + noise.
         k_uniform, k_noise = jax.random.split(key)
-        uniform = jax.random.uniform(k_uniform, (obs_dim,), minval=goal_low, maxval=goal_high)
+        uniform = jax.random.uniform(k_uniform, (obs_dim,), minval=warm_low, maxval=warm_high)
         explored = td3.act(state.high, state.obs, k_noise, config.goal_noise)
         warm = state.replay.size < config.high.learning_starts
         return jnp.where(warm, uniform, explored)
@@ -352,8 +417,9 @@ def make_hiro(config: HiroConfig) -> Algorithm:
         obs, env_state, reward, terminated, truncated, info = env.step_autoreset(
             k_env, state.env_state, action, env_params)
         next_obs = info["final_obs"]  # the true s' (obs is already reset where the episode ended)
-        next_goal = goal_transition(state.obs, goal, next_obs)
-        r_low = intrinsic_reward(state.obs, goal, next_obs, config.low_reward_scale)
+        next_goal = next_goal_of(state.obs, goal, next_obs)
+        target = target_of(state.obs, goal)
+        r_low = -config.low_reward_scale * jnp.linalg.norm(target - next_obs)
         low, low_info = dqn.observe(
             state.low,
             Transition(low_obs, action, r_low, jnp.concatenate([next_obs, next_goal]), terminated),
@@ -375,21 +441,23 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                         jnp.where(option_done, 0, i + 1), states, actions)
 
         episode_return = state.episode_return + reward
+        episode_length = state.episode_length + 1
         stats = _accumulate(stats, {
-            "episodes_ended": ended,
-            "successes": terminated,
-            "return_sum": jnp.where(ended, episode_return, 0.0),
             "low_loss": low_info["loss"],
             "low_updates": low_info["updated"],
             "intrinsic_reward": r_low,
             "options_done": option_done,
-            "goal_distance": jnp.where(option_done, jnp.linalg.norm(next_goal), 0.0),
+            "goal_distance": jnp.where(option_done, jnp.linalg.norm(target - next_obs), 0.0),
         })
+        episode = {"episode_ended": ended, "episode_success": terminated,
+                   "episode_length": episode_length, "episode_return": episode_return,
+                   "episode_end_step": state.env_steps + 1}
         state = state.replace(low=low, replay=replay, env_state=env_state, obs=obs,
                               goal=next_goal, option=option,
                               episode_return=jnp.where(ended, 0.0, episode_return),
+                              episode_length=jnp.where(ended, 0, episode_length),
                               env_steps=state.env_steps + 1)
-        return (state, stats), None
+        return (state, stats), episode
 
     def high_update(high: TD3State, replay: Replay, low_params, key, with_actor: bool):
         k_sample, k_relabel, k_update = jax.random.split(key, 3)
@@ -413,7 +481,7 @@ def make_hiro(config: HiroConfig) -> Algorithm:
     def block(carry, xs):
         key, index = xs
         keys = jax.random.split(key, k + 1)
-        (state, stats), _ = jax.lax.scan(env_step, carry, keys[:k])
+        (state, stats), episode = jax.lax.scan(env_step, carry, keys[:k])
         ready = state.replay.size >= config.high.learning_starts
         # TD3's delayed actor step on every `policy_delay`-th block of the epoch. `index` is the
         # same for every seed, so under vmap this cond stays a branch and the actor step runs
@@ -430,22 +498,18 @@ def make_hiro(config: HiroConfig) -> Algorithm:
         state = state.replace(high=high)
         stats = _accumulate(stats, {"critic_loss": critic_loss, "high_updates": ready,
                                     "relabel_kept": kept})
-        return (state, stats), None
+        return (state, stats), episode
 
     def train_epoch(state: HiroState, key):
         zero_i, zero_f = jnp.int32(0), jnp.float32(0)
-        stats = {"episodes_ended": zero_i, "successes": zero_i, "return_sum": zero_f,
-                 "low_loss": zero_f, "low_updates": zero_i, "intrinsic_reward": zero_f,
+        stats = {"low_loss": zero_f, "low_updates": zero_i, "intrinsic_reward": zero_f,
                  "options_done": zero_i, "goal_distance": zero_f, "critic_loss": zero_f,
                  "high_updates": zero_i, "relabel_kept": zero_f}
-        (state, stats), _ = jax.lax.scan(
+        (state, stats), episodes = jax.lax.scan(
             block, (state, stats), (jax.random.split(key, n_blocks), jnp.arange(n_blocks)))
         per = lambda total, count: total / jnp.maximum(count, 1).astype(jnp.float32)
-        metrics = {
-            "env_steps": state.env_steps,
-            "train_success": per(stats["successes"], stats["episodes_ended"]),
-            "episodes_ended": stats["episodes_ended"],
-            "episode_return": per(stats["return_sum"], stats["episodes_ended"]),
+        episodes = jax.tree.map(lambda x: x.reshape(-1), episodes)  # [n_blocks, k] -> steps
+        metrics = epoch_metrics(episodes, state.env_steps) | {
             "n_goals": jnp.int32(0),
             "low_loss": per(stats["low_loss"], stats["low_updates"]),
             "critic_loss": per(stats["critic_loss"], stats["high_updates"]),
@@ -469,7 +533,7 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                 next_obs, env_state, reward, terminated, truncated, _ = env.step(
                     key, env_state, action, env_params)
                 live = ~done
-                carry = (env_state, next_obs, goal_transition(obs, goal, next_obs),
+                carry = (env_state, next_obs, next_goal_of(obs, goal, next_obs),
                          done | terminated | truncated, success | (terminated & live),
                          ret + jnp.where(live, reward, 0.0))
                 return carry, None

@@ -6,7 +6,12 @@ Times one vmapped critic step and one vmapped actor step (with its soft target u
 call, best of ``--repeats`` rounds with ``block_until_ready``. Also reports the floating-point
 operations of one critic step (dense layers only: forward passes of the target actor and
 twin target critics, forward and backward of the twin critics, backward counted as twice the
-forward) and the rate they imply.
+forward) and the rate they imply, set against this CPU's arithmetic peak: the rate of one large
+float32 matrix product (the best this JAX build reaches here) and the theoretical peak, cores x
+clock x FLOPs per cycle (``--flop-per-cycle``, default 64: two 512-bit FMA pipes per core,
+16 float32 lanes each, 2 FLOPs per FMA, as on AMD Zen 5; the clock from ``/proc/cpuinfo``).
+It also times the same per-seed steps run one seed after another (``lax.map``) instead of
+vmapped, the other way to schedule the seeds' updates.
 
 Usage::
 
@@ -62,12 +67,33 @@ def time_best(fn, args, repeats: int, calls: int = 10) -> float:
     return best
 
 
+def cpu_mhz() -> float | None:
+    """The clock ``/proc/cpuinfo`` reports (first core), ``None`` where there is none."""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.lower().startswith("cpu mhz"):
+                return float(line.split(":")[1])
+    except OSError:
+        pass
+    return None
+
+
+def matmul_gflop_per_s(n: int, repeats: int) -> float:
+    """Best rate of an ``n x n`` float32 matrix product (jitted, compile apart)."""
+    a = jax.random.normal(jax.random.key(3), (n, n), jnp.float32)
+    dot = jax.jit(jnp.dot)
+    return 2 * n**3 / time_best(dot, (a, a), repeats, calls=3) / 1e9
+
+
 def main(argv=None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--hidden", type=int, nargs="+", default=None,
                         help="actor and critic hidden widths (default: HIRO's 300 300)")
     parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--matmul-size", type=int, default=2048)
+    parser.add_argument("--flop-per-cycle", type=float, default=64.0,
+                        help="float32 FLOPs per cycle per core (default 64: AMD Zen 5)")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
     if args.seeds < 1 or args.repeats < 1:
@@ -92,20 +118,39 @@ def main(argv=None) -> dict:
     compile_s = time.perf_counter() - start
     critic_s = time_best(critic, (states, batch, keys), args.repeats)
     actor_s = time_best(actor, (states, batch.obs), args.repeats)
+    seq = jax.jit(lambda s, bt, k: jax.lax.map(lambda x: td3.critic_update(*x), (s, bt, k)))
+    critic_map_s = time_best(seq, (states, batch, keys), args.repeats)
     flops = n * critic_step_flops(config.actor_hidden, config.critic_hidden, b)
+    matmul = matmul_gflop_per_s(args.matmul_size, args.repeats)
+    mhz = cpu_mhz()
+    peak = None if mhz is None else os.cpu_count() * mhz * 1e-3 * args.flop_per_cycle
     result = {
         "seeds": n, "batch_size": b, "actor_hidden": config.actor_hidden,
         "critic_hidden": config.critic_hidden, "compile_s": compile_s,
         "critic_step_s": critic_s, "actor_step_s": actor_s,
         "mean_update_s_with_policy_delay": critic_s + actor_s / config.policy_delay,
         "critic_step_gflop": flops / 1e9, "critic_step_gflop_per_s": flops / critic_s / 1e9,
+        "critic_step_seeds_in_sequence_s": critic_map_s,
+        "matmul_size": args.matmul_size, "matmul_gflop_per_s": matmul,
+        "cpu_mhz": mhz, "flop_per_cycle": args.flop_per_cycle,
+        "theoretical_peak_gflop_per_s": peak,
+        "critic_step_fraction_of_matmul": flops / critic_s / 1e9 / matmul,
+        "critic_step_fraction_of_peak": None if peak is None else flops / critic_s / 1e9 / peak,
         "backend": jax.default_backend(), "cpu_count": os.cpu_count(),
         "load_average": os.getloadavg(), "jax": jax.__version__,
     }
     print(f"TD3 {config.critic_hidden} batch {b}, {n} seeds: critic step {1e3 * critic_s:.1f} ms "
           f"({flops / 1e9:.2f} GFLOP, {flops / critic_s / 1e9:.0f} GFLOP/s), actor step "
           f"{1e3 * actor_s:.1f} ms, mean per high-level update "
-          f"{1e3 * result['mean_update_s_with_policy_delay']:.1f} ms")
+          f"{1e3 * result['mean_update_s_with_policy_delay']:.1f} ms; seeds in sequence: "
+          f"critic step {1e3 * critic_map_s:.1f} ms")
+    print(f"{args.matmul_size}^2 float32 matmul: {matmul:.0f} GFLOP/s; theoretical peak "
+          + ("unknown" if peak is None else f"{peak:.0f} GFLOP/s ({os.cpu_count()} cores x "
+             f"{mhz:.0f} MHz x {args.flop_per_cycle:g})")
+          + f"; the critic step reaches {100 * result['critic_step_fraction_of_matmul']:.0f}% "
+            "of the matmul rate"
+          + ("" if peak is None else
+             f", {100 * result['critic_step_fraction_of_peak']:.0f}% of the peak"))
     write_result(args.out, result)
     return result
 

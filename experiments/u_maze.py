@@ -253,15 +253,16 @@ def _episodes(record) -> dict:
             for f, per_seed in record["episodes"].items()}
 
 
-def summarize_method(record, total_steps: int) -> dict:
+def summarize_method(record) -> dict:
     """``summary.json``'s entry for one method: the greedy fields of
     :func:`gara_jax.results.summarize` and the paper's training-episode success."""
     from gara_jax import results
 
     metrics, episodes = _as_array_metrics(record), _episodes(record)
     summary = results.summarize(metrics, record["wall_time_s"])
+    end = int(metrics["env_steps"][0, -1])  # the run's steps, rounded up to whole epochs
     last = results.ci_summary(results.per_seed_success_after(
-        episodes, max(total_steps - LAST_STEPS, 0)))
+        episodes, max(end - LAST_STEPS, 0)))
     window = results.ci_summary(results.per_seed_episode_success(episodes, *EPISODE_WINDOW))
     summary.update({
         "final_train_success_mean": last["mean"],
@@ -314,7 +315,7 @@ def write_outputs(out: Path, methods, records, run_cfg, seeds) -> dict:
     by_episode, by_step, greedy = {}, {}, {}
     for m in methods:
         metrics, episodes = _as_array_metrics(records[m]), _episodes(records[m])
-        summary[m] = summarize_method(records[m], run_cfg["steps"])
+        summary[m] = summarize_method(records[m])
         rows.extend(results.metrics_rows(m, metrics, seeds))
         episode_rows.extend(results.episode_rows(m, episodes, seeds))
         steps = metrics["env_steps"][0]

@@ -185,8 +185,9 @@ def _reproduce(args: argparse.Namespace) -> int:
 register(
     Command(
         "reproduce",
-        "Reproduce the paper's U-maze study (GARA, GARA planning, Handcrafted, HIRO; 20 seeds "
-        "x 120,000 steps) and write metrics, summary and figures.",
+        "Reproduce the paper's U-maze study (GARA, GARA planning, GARA reference, Handcrafted, "
+        "the paper's HIRO; --methods all adds published HIRO; 20 seeds x 120,000 steps) and "
+        "write metrics, episodes, summary and figures.",
         _reproduce_arguments,
         _reproduce,
     )

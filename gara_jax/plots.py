@@ -5,7 +5,7 @@ Matplotlib with the Agg backend (no display needed). Host-side only.
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 
 import matplotlib
 
@@ -14,39 +14,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.patches import Rectangle  # noqa: E402
 
-from gara_jax.results import mean_ci95  # noqa: E402
-
 # Velocity ranges narrower than the full [-1, 1] count as a split on that component.
 _VEL_FULL = (-1.0, 1.0)
-
-
-def plot_success_curves(curves: Mapping[str, tuple[np.ndarray, np.ndarray]], path,
-                        title: str = "Average success rate on the U-shaped maze") -> None:
-    """One line per method: seed-mean greedy success against env steps, with 95% CI bands.
-
-    ``curves`` maps a method name to ``(env_steps [E], success [n_seeds, E])``.
-
-    Example:
-        >>> import tempfile, os
-        >>> d = tempfile.mkdtemp()
-        >>> plot_success_curves({"m": (np.arange(3), np.ones((2, 3)))}, os.path.join(d, "c.png"))
-    """
-    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
-    for name, (steps, success) in curves.items():
-        success = np.asarray(success, dtype=np.float64)
-        mean, half = mean_ci95(success, axis=0)
-        line, = ax.plot(steps, mean, label=f"{name} ({success.shape[0]} seeds)")
-        ax.fill_between(steps, np.clip(mean - half, 0, 1), np.clip(mean + half, 0, 1),
-                        color=line.get_color(), alpha=0.2, linewidth=0)
-    ax.set_xlabel("environment steps")
-    ax.set_ylabel("greedy success rate")
-    ax.set_ylim(-0.02, 1.02)
-    ax.set_title(title)
-    ax.grid(alpha=0.3)
-    ax.legend(loc="best")
-    fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
 
 
 def plot_curve_panels(panels, path, suptitle: str = "") -> None:

@@ -23,8 +23,11 @@ output scaled to the whole goal box). Writes to ``--out``:
   3x10^4 steps and at the end (the seed rule: :func:`partition_seed`);
 - ``config.json``: everything needed to rerun (the full config of every method).
 
-A checkpoint is written after every epoch under ``--out/checkpoints``; ``--resume`` continues
-from it and ends with exactly the metrics of an uninterrupted run. Result files are written
+A checkpoint is written under ``--out/checkpoints`` after an epoch when ``--checkpoint-every``
+seconds (default 60; 0: every epoch, as ``--quick`` does) have passed since the last one, and
+after a method's last epoch; ``--resume`` continues from it and ends with exactly the metrics
+of an uninterrupted run. (A 20-seed GARA checkpoint is about 290 MB, mostly replay buffers:
+writing one every 3,000-step epoch would cost about a quarter of the run's time here.) Result files are written
 only when every method has finished, each atomically.
 
 ``--env point_u_maze`` runs the same study on the brax-simulated U-maze (envs/point_maze.py)
@@ -108,6 +111,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="continue the run in --out from its last completed epoch")
     p.add_argument("--steps-per-epoch", type=int, default=None,
                    help="environment steps between evaluations / refinements (default 3000)")
+    p.add_argument("--checkpoint-every", type=float, default=None, metavar="SECONDS",
+                   help="seconds between checkpoints (default 60; 0: after every epoch; a "
+                        "method's last epoch is always saved)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -123,6 +129,8 @@ def _apply_defaults(args: argparse.Namespace) -> argparse.Namespace:
     if args.steps_per_epoch is None and args.quick:
         args.steps_per_epoch = QUICK["steps_per_epoch"]
     args.eval_episodes = QUICK["eval_episodes"] if args.quick else None
+    if getattr(args, "checkpoint_every", None) is None:
+        args.checkpoint_every = 0.0 if args.quick else 60.0
     return args
 
 
@@ -147,6 +155,8 @@ def validate(args) -> list[str]:
         raise UsageError(f"--seeds: must be >= 1, got {args.seeds}")
     if args.steps < 1:
         raise UsageError(f"--steps: must be >= 1, got {args.steps}")
+    if not args.checkpoint_every >= 0:
+        raise UsageError(f"--checkpoint-every: must be >= 0, got {args.checkpoint_every}")
     if args.steps_per_epoch is not None and args.steps_per_epoch < 1:
         raise UsageError(f"--steps-per-epoch: must be >= 1, got {args.steps_per_epoch}")
     try:
@@ -211,6 +221,7 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
     progress = _Progress(method, args.seeds, n_epochs, loop.epoch, config.steps_per_epoch,
                          enabled=not args.no_progress)
     t0, base_wall = time.perf_counter(), record["wall_time_s"]
+    last_save = t0
     try:
         for out in train_epochs(config, args.seeds, args.steps, init_state=loop):
             for k, v in out.metrics.items():
@@ -222,7 +233,10 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
             for i, snaps in enumerate(out.snapshots):
                 record["snapshots"][i].extend(_snap_json(s) for s in snaps)
             record["wall_time_s"] = base_wall + time.perf_counter() - t0
-            checkpoint.save(path, out.loop, record)
+            if (out.epoch + 1 == out.n_epochs
+                    or time.perf_counter() - last_save >= args.checkpoint_every):
+                checkpoint.save(path, out.loop, record)
+                last_save = time.perf_counter()
             progress.update(out)
     finally:
         progress.close()

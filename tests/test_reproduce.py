@@ -194,3 +194,18 @@ def test_methods_all_is_the_default_and_published_hiro(tmp_path):
     assert u_maze.validate(args) == [*u_maze.DEFAULT_METHODS, "hiro"]
     args = u_maze._apply_defaults(u_maze.parse_args(["--out", str(tmp_path / "o")]))
     assert u_maze.validate(args) == list(u_maze.DEFAULT_METHODS)
+
+
+def test_checkpoint_interval_saves_a_methods_last_epoch_and_keeps_the_metrics(quick_run, tmp_path,
+                                                                              monkeypatch):
+    real_save, saved = checkpoint.save, []
+    monkeypatch.setattr(checkpoint, "save",
+                        lambda path, loop, extra: (saved.append(loop.epoch),
+                                                   real_save(path, loop, extra)))
+    out = tmp_path / "sparse"
+    assert u_maze.main([*QUICK, "--methods", "handcrafted", "--checkpoint-every", "1e9",
+                        "--out", str(out)]) == 0
+    assert saved == [2]  # only after the last of the two epochs
+    want = [r for r in _rows(quick_run / "metrics.csv") if r["method"] == "handcrafted"]
+    assert _rows(out / "metrics.csv") == want
+    assert u_maze.main([*QUICK, "--checkpoint-every", "-1", "--out", str(out)]) == 2

@@ -26,9 +26,9 @@ output scaled to the whole goal box). Writes to ``--out``:
 A checkpoint is written under ``--out/checkpoints`` after an epoch when ``--checkpoint-every``
 seconds (default 60; 0: every epoch, as ``--quick`` does) have passed since the last one, and
 after a method's last epoch; ``--resume`` continues from it and ends with exactly the metrics
-of an uninterrupted run. (A 20-seed GARA checkpoint is about 290 MB, mostly replay buffers:
-writing one every 3,000-step epoch would cost about a quarter of the run's time here.) Result files are written
-only when every method has finished, each atomically.
+of an uninterrupted run. (A 20-seed GARA checkpoint is about 290 MB, mostly replay buffers;
+one write takes seconds, too much to repeat after every 3,000-step epoch.) Result files are
+written only when every method has finished, each atomically.
 
 ``--env point_u_maze`` runs the same study on the brax-simulated U-maze (envs/point_maze.py)
 and writes the same files to ``results/point_u_maze`` by default.

@@ -120,6 +120,11 @@ class HiroConfig:
     relabel_sigma: float = 0.5  # std of those samples, as a fraction of the goal half-range
     relabel_temperature: float = 1.0  # Boltzmann temperature of the low level's Q-values
     goal_space: str = "relative"  # or "absolute" (see above)
+    # How the seeds' high-level updates run when train_epoch is vmapped over seeds:
+    # "sequential" one seed after another (lax.map; on CPU the per-seed matrix products are
+    # much faster than XLA's batched ones), "vmap" as batched operations. Same algorithm;
+    # floating-point results differ in the last bits. No effect on one unbatched seed.
+    seed_schedule: str = "sequential"
 
     @classmethod
     def paper(cls, **overrides) -> HiroConfig:
@@ -170,6 +175,9 @@ class HiroConfig:
         for name in ("high_reward_scale", "low_reward_scale"):
             if not math.isfinite(getattr(self, name)):
                 raise ValueError(f"{name}: must be finite, got {getattr(self, name)}")
+        if self.seed_schedule not in ("sequential", "vmap"):
+            raise ValueError(f"seed_schedule: must be 'sequential' or 'vmap', got "
+                             f"{self.seed_schedule!r}")
         if self.goal_space not in ("relative", "absolute"):
             raise ValueError(f"goal_space: must be 'relative' or 'absolute', got "
                              f"{self.goal_space!r}")
@@ -339,6 +347,31 @@ class HiroState:
 # ------------------------------------------------------------------------------------------------
 
 
+def seeds_in_sequence(f):
+    """``f`` itself on one seed; under ``vmap``, its batch runs element by element (``lax.map``)
+    instead of as batched operations, and a ``cond`` inside ``f`` stays a branch per element.
+
+    Example:
+        >>> import jax, jax.numpy as jnp
+        >>> g = seeds_in_sequence(lambda x, y: (x @ x.T + y).sum())
+        >>> x = jnp.ones((3, 2, 2))
+        >>> jax.vmap(g, in_axes=(0, None))(x, 1.0).tolist()
+        [12.0, 12.0, 12.0]
+    """
+    wrapped = jax.custom_batching.custom_vmap(f)
+
+    @wrapped.def_vmap
+    def rule(axis_size, in_batched, *args):
+        def batched(x, b):
+            return x if b else jnp.broadcast_to(x, (axis_size, *jnp.shape(x)))
+
+        args = jax.tree.map(batched, tuple(args), tuple(in_batched))
+        out = jax.lax.map(lambda a: f(*a), args)
+        return out, jax.tree.map(lambda _: True, out)
+
+    return wrapped
+
+
 def _accumulate(stats: dict, values: dict) -> dict:
     """Add ``values`` into the running epoch sums ``stats`` (same dtypes kept)."""
     return stats | {name: stats[name] + jnp.asarray(v).astype(stats[name].dtype)
@@ -459,7 +492,25 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                               env_steps=state.env_steps + 1)
         return (state, stats), episode
 
-    def high_update(high: TD3State, replay: Replay, low_params, key, with_actor: bool):
+    def critic_step(high: TD3State, batch: Batch, key):
+        return td3.critic_update(high, batch, key)
+
+    def critic_and_actor_step(high: TD3State, batch: Batch, key):
+        high, critic_loss = td3.critic_update(high, batch, key)
+        return td3.actor_update(high, batch.obs)[0], critic_loss
+
+    def when_ready(step):
+        # Under vmap, `ready` differs per seed: with the "vmap" schedule this cond becomes a
+        # select (both sides computed), which is why only the TD3 state and the sampled batch
+        # go through it, never the replay buffers. With "sequential" it stays a branch per
+        # seed.
+        def guarded(ready, high, batch, key):
+            return jax.lax.cond(ready, step, lambda h, *_: (h, jnp.float32(0)), high, batch, key)
+        return seeds_in_sequence(guarded) if config.seed_schedule == "sequential" else guarded
+
+    td3_steps = {False: when_ready(critic_step), True: when_ready(critic_and_actor_step)}
+
+    def high_update(high: TD3State, replay: Replay, low_params, key, ready, with_actor: bool):
         k_sample, k_relabel, k_update = jax.random.split(key, 3)
         batch = replay_sample(replay, k_sample, config.high.batch_size)
         if config.relabel:
@@ -469,14 +520,10 @@ def make_hiro(config: HiroConfig) -> Algorithm:
                 config.relabel_candidates, config.relabel_sigma, config.relabel_temperature)
         else:
             goals, chosen = batch.goal, jnp.zeros(config.high.batch_size, jnp.int32)
-        high, critic_loss = td3.critic_update(
-            high, Batch(batch.obs, goals, batch.reward, batch.next_obs, batch.done), k_update)
-        if with_actor:
-            high, _ = td3.actor_update(high, batch.obs)
-        return high, critic_loss, jnp.mean(chosen == 0)
-
-    def skip_update(high, *_):
-        return high, jnp.float32(0), jnp.float32(0)
+        high, critic_loss = td3_steps[with_actor](
+            ready, high, Batch(batch.obs, goals, batch.reward, batch.next_obs, batch.done),
+            k_update)
+        return high, critic_loss, jnp.where(ready, jnp.mean(chosen == 0), 0.0)
 
     def block(carry, xs):
         key, index = xs
@@ -485,16 +532,11 @@ def make_hiro(config: HiroConfig) -> Algorithm:
         ready = state.replay.size >= config.high.learning_starts
         # TD3's delayed actor step on every `policy_delay`-th block of the epoch. `index` is the
         # same for every seed, so under vmap this cond stays a branch and the actor step runs
-        # only where it is due; `ready` differs per seed, so its cond becomes a select, which
-        # is why only the TD3 state goes through it (never the replay buffers).
+        # only where it is due.
         due = index % config.high.policy_delay == config.high.policy_delay - 1
         high, critic_loss, kept = jax.lax.cond(
-            due,
-            lambda *a: jax.lax.cond(ready, partial(high_update, with_actor=True), skip_update,
-                                    *a),
-            lambda *a: jax.lax.cond(ready, partial(high_update, with_actor=False), skip_update,
-                                    *a),
-            state.high, state.replay, state.low.params, keys[k])
+            due, partial(high_update, with_actor=True), partial(high_update, with_actor=False),
+            state.high, state.replay, state.low.params, keys[k], ready)
         state = state.replace(high=high)
         stats = _accumulate(stats, {"critic_loss": critic_loss, "high_updates": ready,
                                     "relabel_kept": kept})

@@ -4,11 +4,12 @@ By default trains ``gara`` and ``gara_planning`` (``GaraConfig()``, Q-learning a
 high levels), ``gara_reference`` (``GaraConfig.reference()``, the authors' version),
 ``handcrafted`` and ``hiro_paper`` (``HiroConfig.paper()``, the HIRO baseline the paper ran);
 ``--methods all`` adds ``hiro`` (HIRO as published). All seeds of a method are vmapped in one
-process. Three diagnostic methods, each the paper's HIRO with one of its mechanisms changed,
-can be named explicitly: ``hiro_paper_standard_target`` (its reward-less critic target fixed),
-``hiro_paper_full_range`` (its actor output scaled to the whole goal box) and
+process. Diagnostic methods, the paper's HIRO with one of its mechanisms changed, can be named
+explicitly: ``hiro_paper_standard_target`` (its reward-less critic target fixed),
+``hiro_paper_full_range`` (its actor output scaled to the whole goal box),
 ``hiro_paper_unclipped_low`` (its low level's TD targets not clipped to [-1, 1], as published
-HIRO's). Writes to ``--out``:
+HIRO's) and ``hiro_paper_full_range_unclipped_low`` (the last two together). Writes to
+``--out``:
 
 - ``metrics.csv``: method, seed, env step, eval success, training success, goals, return
   (one row per seed and epoch);
@@ -54,7 +55,7 @@ import numpy as np
 DEFAULT_METHODS = ("gara", "gara_planning", "gara_reference", "handcrafted", "hiro_paper")
 ALL_METHODS = (*DEFAULT_METHODS, "hiro")  # --methods all
 DIAGNOSTIC_METHODS = ("hiro_paper_standard_target", "hiro_paper_full_range",
-                      "hiro_paper_unclipped_low")
+                      "hiro_paper_unclipped_low", "hiro_paper_full_range_unclipped_low")
 METHODS = (*ALL_METHODS, *DIAGNOSTIC_METHODS)
 GARA_METHODS = ("gara", "gara_planning", "gara_reference")
 LAST_STEPS = 30_000  # the final training success counts the episodes ending in these steps
@@ -80,6 +81,7 @@ def method_config(method: str, *, env: str = "u_maze", steps_per_epoch: int | No
     from gara_jax.agents.td3 import DDPG_PAPER
     from gara_jax.algorithms import GaraConfig, HandcraftedConfig, HiroConfig
 
+    unclipped = dataclasses.replace(DQNConfig(), td_target_clip=1e6)
     paper_high = lambda **kw: lambda **o: HiroConfig.paper(  # noqa: E731
         high=dataclasses.replace(DDPG_PAPER, **kw), **o)
     factories = {"gara": lambda **kw: GaraConfig(planning=False, **kw),
@@ -89,8 +91,10 @@ def method_config(method: str, *, env: str = "u_maze", steps_per_epoch: int | No
                  "hiro": HiroConfig,
                  "hiro_paper_standard_target": paper_high(critic_target="standard"),
                  "hiro_paper_full_range": paper_high(actor_output="box"),
-                 "hiro_paper_unclipped_low": lambda **kw: HiroConfig.paper(
-                     low=dataclasses.replace(DQNConfig(), td_target_clip=1e6), **kw)}
+                 "hiro_paper_unclipped_low": lambda **kw: HiroConfig.paper(low=unclipped, **kw),
+                 "hiro_paper_full_range_unclipped_low": lambda **kw: HiroConfig.paper(
+                     low=unclipped, high=dataclasses.replace(DDPG_PAPER, actor_output="box"),
+                     **kw)}
     overrides = {"env": env}
     if steps_per_epoch is not None:
         overrides["steps_per_epoch"] = steps_per_epoch

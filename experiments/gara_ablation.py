@@ -8,6 +8,9 @@ one process through :func:`gara_jax.train.train_many` and is summarised by
 - ``train_last30k``: success of the training episodes that ended in the last 30,000 steps;
 - ``greedy_end``: greedy evaluation success after the last epoch (``eval_episodes`` episodes
   per seed from the start, both levels greedy);
+- ``greedy_last10``: the same evaluation averaged over the last ``LAST_EVALS`` epochs per seed
+  (a less noisy view of the same greedy policy: one snapshot of a DQN trained at lr 0.01
+  varies from epoch to epoch);
 - ``goals_end``, ``analysed``, ``splits`` (per seed, mean), and the wall time.
 
 Results go to ``--out`` (JSON, rewritten after every variant; a variant already there with the
@@ -31,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 LAST_STEPS = 30_000
+LAST_EVALS = 10
 EPISODE_WINDOW = (300, 400)
 
 
@@ -44,6 +48,8 @@ def _variants():
     rep = lambda cfg, **kw: dataclasses.replace(cfg, **kw)
     high = lambda cfg, **kw: dataclasses.replace(cfg, high=dataclasses.replace(cfg.high, **kw))
     low = lambda cfg, **kw: dataclasses.replace(cfg, low=dataclasses.replace(cfg.low, **kw))
+    fwd = lambda cfg, **kw: dataclasses.replace(
+        cfg, forward=dataclasses.replace(cfg.forward, **kw))
     previous = GaraConfig(
         memory="options", memory_capacity=10_000, forward_model="per_job", tau1=0.7, tau2=0.1,
         small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
@@ -108,10 +114,26 @@ def _variants():
                             rep(ours, relabel_replay=True)),
         "default+loop_penalty": ("the stall penalty also for returning to the option's start",
                                  rep(ours, stall_includes_loops=True)),
+        "default+per_job_model": ("a fresh forward model per analysis, fitted until stable",
+                                  rep(ours, forward_model="per_job")),
+        "default+shared_steps_32": ("32 gradient steps per update of the shared forward model",
+                                    fwd(ours, shared_steps=32)),
+        "default+shared_steps_128": ("128 gradient steps per update of the shared forward model",
+                                     fwd(ours, shared_steps=128)),
+        "default+piece_order_parent": ("pieces of a split take its place in the first-box "
+                                       "order", rep(ours, piece_order="parent")),
+        "default+q_both": ("high-level update of the reached and the targeted entry",
+                           high(ours, q_target_entry="both")),
+        "default+high_gamma_0.9": ("high-level discount 0.9 per option, not 0.99",
+                                   high(ours, gamma=0.9)),
+        "default+avoid_stalled": ("the low level never repeats an action that just left the "
+                                  "state unchanged", rep(ours, avoid_stalled_action=True)),
         "default_planning": ("GaraConfig(planning=True)", rep(ours, planning=True)),
         "reference_planning": ("GaraConfig.reference(planning=True)",
                                GaraConfig.reference(planning=True)),
         "handcrafted": ("HandcraftedConfig()", HandcraftedConfig()),
+        "handcrafted+avoid_stalled": ("HandcraftedConfig(avoid_stalled_action=True)",
+                                      HandcraftedConfig(avoid_stalled_action=True)),
         "handcrafted_reference": ("HandcraftedConfig.reference()", HandcraftedConfig.reference()),
         "handcrafted_previous": ("HandcraftedConfig() before SPEC revision 2 (session 4)",
                                  HandcraftedConfig(low=previous.low, high=previous.high,
@@ -194,6 +216,7 @@ def summarize_run(result, total_steps: int) -> dict:
         "train_last30k": R.ci_summary(
             R.per_seed_success_after(ep, max(0, total_steps - LAST_STEPS))),
         "greedy_end": R.ci_summary(m["eval_success"][:, -1]),
+        "greedy_last10": R.ci_summary(np.mean(m["eval_success"][:, -LAST_EVALS:], axis=1)),
         "goals_end": float(np.mean(m["n_goals"][:, -1])),
         "analysed": float(per_seed("analysed")) if host else 0.0,
         "splits": float(per_seed("splits")) if host else 0.0,
@@ -210,18 +233,27 @@ def _fmt(s: dict) -> str:
     return "-" if s["mean"] is None else f"{s['mean']:.2f} ± {s['ci95']:.2f}"
 
 
+def _last_evals(row: dict) -> str:
+    """``greedy_last10`` with its interval; for rows stored before it existed, the mean alone
+    from the seed-mean greedy curve (the same number, without the per-seed spread)."""
+    if "greedy_last10" in row["summary"]:
+        return _fmt(row["summary"]["greedy_last10"])
+    return f"{np.mean(row['curves']['greedy'][-LAST_EVALS:]):.2f}"
+
+
 def table(rows: dict) -> str:
     """A markdown table of the summarised variants."""
     lines = ["| variant | training, episodes 300-399 | training, last 30k steps | greedy, end "
+             f"| greedy, last {LAST_EVALS} evals "
              "| greedy fails: stall / self-target loop / loop / other | goals | analyses "
-             "| splits |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "| splits |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, r in rows.items():
         s = r["summary"]
         o = s.get("greedy_outcomes") or {}
         fails = " / ".join(str(o.get(k, "-")) for k in GREEDY_OUTCOMES[1:])
         lines.append(f"| `{name}` | {_fmt(s['train_ep300_400'])} | {_fmt(s['train_last30k'])} | "
-                     f"{_fmt(s['greedy_end'])} | {fails} | {s['goals_end']:.1f} | "
-                     f"{s['analysed']:.1f} | {s['splits']:.1f} |")
+                     f"{_fmt(s['greedy_end'])} | {_last_evals(r)} | {fails} | "
+                     f"{s['goals_end']:.1f} | {s['analysed']:.1f} | {s['splits']:.1f} |")
     return "\n".join(lines)
 
 

@@ -281,6 +281,27 @@ def test_host_step_splits_boosts_epsilon_and_relabels_the_replay():
     assert int(new2.dqn.buffer.current_index[0]) == 2
 
 
+def test_piece_order_parent_keeps_the_wall_face_in_the_left_region_after_a_split():
+    face = jnp.array([1.0, 0.5, 0.0, 0.0])  # pressed against the wall, at rest
+
+    def face_goal(order):
+        cfg = GaraConfig(**HOST_CFG, piece_order=order)
+        new, info = make_algorithm(cfg).host_update(_crafted_host_state(cfg), epoch=0)
+        assert info["splits"] == 1
+        partition = jax.tree.map(lambda a: a[0], new.partition)
+        count = int(partition.count)
+        # The lower part of the left box (below y = 1.5) went to appended pieces.
+        goal = int(locate(partition, face))
+        return goal, partition, count
+
+    goal, partition, count = face_goal("appended")
+    assert goal == 1 and partition.rank is None  # the right box [1, 3] x [0, 3]
+    goal, partition, count = face_goal("parent")
+    assert goal >= 2 and float(partition.hi[goal, 0]) == 1.0  # a piece of the left box
+    assert sorted(np.asarray(partition.rank[:count]).tolist()) == list(range(count))
+    assert int(partition.rank[1]) == count - 1  # the right box comes after every piece
+
+
 def test_shared_forward_model_needs_records_before_an_analysis():
     cfg = GaraConfig(**dict(HOST_CFG, forward_model="shared"), shared_min_records=3)
     alg = make_algorithm(cfg)
@@ -320,6 +341,32 @@ def test_shared_updates_skip_empty_segments_and_dead_slots():
         jax.tree.leaves(params), jax.tree.leaves(moved), strict=True))
 
 
+def test_shared_steps_take_that_many_gradient_steps_per_update():
+    """``shared_steps=n`` is n single-step updates on fresh samples: the same fit as n calls of
+    the reference's update (here with all rows alike, so every sample is the same batch)."""
+    x, y = jnp.ones((8, 12)), jnp.full((8, 4), 0.5)
+    rows, seg_start, seg_len = fm.pair_segments(np.zeros(8), np.ones(8, bool), np.array([0]))
+    seg = tuple(map(jnp.asarray, (rows, seg_start, seg_len)))
+    key = jax.random.key(3)
+
+    def run(steps, calls):
+        f = fm.make_forward_model(fm.ForwardModelConfig(shared_steps=steps), state_dim=4)
+        params = jax.tree.map(lambda p: p[0], f.init(jax.random.split(jax.random.key(0), 1)))
+        opt = f.init_optimizer(params)
+        for _ in range(calls):
+            params, opt, mse = f.shared_updates(params, opt, x, y, *seg, jnp.array([True]),
+                                                key[None])
+        return params, float(mse[0])
+
+    one, mse_one = run(1, 1)
+    many, mse_many = run(20, 1)
+    repeated, mse_repeated = run(1, 20)
+    assert mse_many < 0.5 * mse_one  # twenty steps fit a constant target much better
+    for a, b in zip(jax.tree.leaves(many), jax.tree.leaves(repeated), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    assert mse_many == pytest.approx(mse_repeated, rel=1e-4)
+
+
 def test_episode_records_match_the_epoch_counts():
     cfg = dataclasses.replace(HandcraftedConfig(steps_per_epoch=400, eval_episodes=1, low=LOW))
     res = tr.train_many(cfg, [0, 1], total_steps=1200)
@@ -355,6 +402,46 @@ def test_stall_penalty_replaces_the_reward_of_steps_that_do_not_move():
     plain = _replay_after_one_epoch(stall_penalty=None)
     stalled = np.all(plain["obs"][:, :4] == plain["next_obs"][:, :4], axis=1)
     assert np.all(plain["reward"][stalled] > -1.0)
+
+
+def test_avoid_stalled_action_never_repeats_a_step_that_did_not_move():
+    def repeats_after_a_stall(t):
+        same_state = np.all(t["obs"][:, :4] == t["next_obs"][:, :4], axis=1)[:-1]
+        repeated = t["action"][1:] == t["action"][:-1]
+        # One epoch of 200 steps: no truncation, so consecutive rows are consecutive steps
+        # unless the exit was reached.
+        return int(np.sum(same_state & repeated & ~t["done"][:-1])), int(same_state.sum())
+
+    guarded, stalls = repeats_after_a_stall(_replay_after_one_epoch(avoid_stalled_action=True))
+    assert guarded == 0 and stalls > 0
+    plain, _ = repeats_after_a_stall(_replay_after_one_epoch(avoid_stalled_action=False))
+    assert plain > 0  # random actions repeat a stalled press about a quarter of the time
+
+
+def test_avoid_stalled_action_in_the_greedy_rollout_slides_along_a_bound():
+    """A low level whose Q-values prefer DOWN, then RIGHT, everywhere: from the start corner
+    DOWN never moves; with the guard, every stalled DOWN is followed by a RIGHT, up to the
+    wall face x = 1, where RIGHT stalls too (a one-step memory cannot leave a corner of two
+    stalled actions)."""
+
+    def rollout(avoid):
+        cfg = HandcraftedConfig(steps_per_epoch=10, eval_episodes=1, low=LOW,
+                                avoid_stalled_action=avoid)
+        alg = make_algorithm(cfg)
+        state = alg.init(jax.random.key(0))
+        layers = state.dqn.params["params"]
+        last = sorted(layers)[-1]
+        layers[last]["kernel"] = jnp.zeros_like(layers[last]["kernel"])
+        layers[last]["bias"] = jnp.array([0.0, 1.0, 0.0, 2.0])  # LEFT, RIGHT, UP, DOWN
+        return jax.device_get(alg.greedy_rollout(state, jax.random.key(1)))
+
+    plain = rollout(False)
+    assert np.all(plain["obs"][:, :2] == 0.0) and not plain["success"]
+    guarded = rollout(True)
+    x = guarded["obs"][:, 0]
+    assert np.all(guarded["obs"][:, 1] == 0.0)  # DOWN keeps y on the bound
+    assert x[2] > 0.0 and np.all(np.diff(x) >= 0.0)
+    assert x[-1] == pytest.approx(1.0) and np.all(x[x < 1.0] < 1.0)
 
 
 def test_reached_at_start_pays_no_entry_reward_to_options_starting_inside():

@@ -63,6 +63,7 @@ MEMORY_KINDS = ("options", "windows")
 FORWARD_MODELS = ("per_job", "shared")
 Q_COLUMNS = ("copy", "reference", "zero")
 SELF_TARGETS = ("always", "exit_goal")
+PIECE_ORDERS = ("appended", "parent")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -113,6 +114,14 @@ class HandcraftedConfig:
             towards the goal it already is in makes no progress, and since such an option
             always "succeeds", the reference's hindsight update keeps ``Q[g, g]`` close to the
             row's best value, where a greedy high level can stay forever.
+        avoid_stalled_action: the low level never takes, right after a step that left the
+            state exactly unchanged, the action of that step again: the environment is
+            deterministic, so it would leave the state unchanged again (a fixed point that a
+            greedy policy, once there, never leaves). The best other action by the low level's
+            Q-values is taken instead (also when exploration drew the repeated action). Part of
+            the policy: it acts in training and in the greedy evaluation alike. Pressing
+            against a wall face then alternates the press with the next-best move, which
+            slides along the face. ``False`` (the reference): no such memory.
         eval_epsilon_high, eval_epsilon_low: exploration during evaluation (0: greedy).
         terminal_on_entry: stop the low level's bootstrap on entering its goal (the reference
             does not).
@@ -154,6 +163,7 @@ class HandcraftedConfig:
     stall_includes_loops: bool = False
     reached_at_start: bool = True
     self_target: str = "always"
+    avoid_stalled_action: bool = False
     eval_epsilon_high: float = 0.0
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
@@ -254,6 +264,16 @@ class GaraConfig(HandcraftedConfig):
             columns are 0, as the reference does; ``"zero"``: every piece's column is 0, so
             no piece inherits a value learned for the whole box. Rows (the pieces as starts)
             are always copied.
+        piece_order: where the pieces of a split come in the first-box rule that decides
+            which goal holds a state on a face shared by two boxes (SPEC.md section 2).
+            ``"appended"`` (the reference): after every other goal, as their indices are. So
+            once the left box ``[0, 1] x [0, 3]`` of the U-maze is split, the wall face
+            ``x = 1``, which it held, passes to the right box ``[1, 3] x [0, 3]`` (index 1)
+            for the states of every piece but the one that keeps index 0: pressing against
+            the wall "enters" the right box again, which ``goal_membership="partition"``
+            ruled out for the initial partition. ``"parent"``: the pieces take the split
+            goal's place in the order (a ranked :class:`~gara_jax.partition.Partition`), so
+            a face keeps belonging to the region that held it.
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -286,6 +306,7 @@ class GaraConfig(HandcraftedConfig):
     split_epsilon_boost: float = 1.5
     relabel_replay: bool = False
     q_columns: str = "reference"
+    piece_order: str = "appended"
 
     def __post_init__(self):
         super().__post_init__()
@@ -313,6 +334,7 @@ class GaraConfig(HandcraftedConfig):
                 "split_epsilon_boost: must be a finite number >= 1, got "
                 f"{self.split_epsilon_boost}")
         _one_of(self, "q_columns", Q_COLUMNS)
+        _one_of(self, "piece_order", PIECE_ORDERS)
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
 
     @classmethod
@@ -372,7 +394,8 @@ def _validate_common(cfg):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
     if not isinstance(cfg.high, hl.HighLevelConfig):
         raise ValueError(f"high: must be a HighLevelConfig, got {cfg.high!r}")
-    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start", "stall_includes_loops")
+    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start", "stall_includes_loops",
+           "avoid_stalled_action")
     _one_of(cfg, "intrinsic", INTRINSIC_RULES)
     _one_of(cfg, "entry_reward", ENTRY_REWARDS)
     _one_of(cfg, "self_target", SELF_TARGETS)
@@ -424,7 +447,8 @@ class Episode:
 
     ``history[t % (k + 1)]`` holds the state at step ``t`` of the episode, so the last ``k + 1``
     states are at hand; ``prev_lo/prev_hi`` are the previous option's target bounds
-    (``has_prev``: an option already ended in this episode).
+    (``has_prev``: an option already ended in this episode). ``stalled_action`` is what
+    ``avoid_stalled_action`` reads.
     """
 
     length: jax.Array  # steps taken in the current episode
@@ -435,6 +459,7 @@ class Episode:
     prev_lo: jax.Array
     prev_hi: jax.Array
     has_prev: jax.Array
+    stalled_action: Any = -1  # the last step's action if it left the state unchanged, else -1
 
 
 @struct.dataclass
@@ -482,7 +507,10 @@ def initial_partition(config):
             f"env: the handcrafted and initial GARA partitions are defined for the U-maze "
             f"environments {U_MAZE_ENVS} only, got {config.env!r}")
     if isinstance(config, GaraConfig):
-        return part.gara_initial(max_goals=config.max_goals)
+        p = part.gara_initial(max_goals=config.max_goals)
+        if config.piece_order == "parent":
+            p = p.replace(rank=jnp.arange(config.max_goals, dtype=jnp.int32))
+        return p
     return part.handcrafted(max_goals=config.max_goals)
 
 
@@ -598,6 +626,15 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break,
                          exclude)
 
+    def avoid_stalled(params, x, action, stalled_action):
+        """``action``, unless it is the action that just left the state unchanged: then the
+        best other one (``avoid_stalled_action``)."""
+        if not config.avoid_stalled_action:
+            return action
+        q = dqn.q_values(params, x)
+        other = jnp.argmax(jnp.where(jnp.arange(q.shape[-1]) == stalled_action, -jnp.inf, q))
+        return jnp.where(action == stalled_action, other.astype(action.dtype), action)
+
     def exit_goals(high, partition):
         goal = locate(partition, high.exit_state)
         return (jnp.arange(G) == goal) & high.exit_known
@@ -627,7 +664,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             length=jnp.int32(0), count=jnp.int32(0), ret=jnp.float32(0.0),
             last_intrinsic=jnp.float32(0.0),
             history=jnp.zeros((k + 1 if windows else 1, dim), jnp.float32),
-            prev_lo=zeros, prev_hi=zeros, has_prev=jnp.asarray(False))
+            prev_lo=zeros, prev_hi=zeros, has_prev=jnp.asarray(False),
+            stalled_action=jnp.int32(-1))
         fm_params = jax.tree.map(lambda p: p[0], forward.init(k_fm[None]))
         shared = SharedForward(
             params=fm_params, opt_state=forward.init_optimizer(fm_params),
@@ -671,7 +709,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # 2. Low level acts; the environment steps (auto-reset at episode end).
         goal_in = jnp.concatenate([option.target_lo, option.target_hi])
         x = jnp.concatenate([s.obs, goal_in])
-        action = dqn.act(s.dqn, x, k_act)
+        action = avoid_stalled(s.dqn.params, x, dqn.act(s.dqn, x, k_act),
+                               episode.stalled_action)
         obs, env_state, reward, terminated, truncated, info = env.step_autoreset(
             k_env, s.env_state, action, env_params)
         next_s = info["final_obs"]  # the true next state, before any reset
@@ -685,6 +724,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         intrinsic, inside, first_entry = intrinsic_reward(
             next_s, option.target_lo, option.target_hi, option.reached, config.reach_reward,
             config.outside_penalty, in_target, config.intrinsic, previous)
+        unchanged = jnp.all(next_s == s.obs) & ~terminated
         if config.stall_penalty is not None:
             stalled = jnp.all(next_s == s.obs)
             if config.stall_includes_loops:
@@ -755,7 +795,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             ret=jnp.where(episode_over, 0.0, ret),
             last_intrinsic=jnp.where(episode_over, 0.0, intrinsic),
             history=history,
-            has_prev=episode.has_prev & ~episode_over)
+            has_prev=episode.has_prev & ~episode_over,
+            stalled_action=jnp.where(unchanged & ~episode_over, action, -1).astype(jnp.int32))
         s = s.replace(obs=obs, env_state=env_state, dqn=dqn_state, high=high, option=option,
                       episode=episode, memory=memory, env_steps=env_steps)
         return s, stats
@@ -788,7 +829,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         obs, env_state = env.reset(k_reset, env_params)
         carry = dict(obs=obs, env_state=env_state, target=jnp.int32(0), steps=jnp.int32(0),
                      done=jnp.asarray(False), success=jnp.asarray(False),
-                     ret=jnp.float32(0.0))
+                     ret=jnp.float32(0.0), stalled_action=jnp.int32(-1))
 
         def one(c, key):
             deciding = c["steps"] == 0
@@ -801,6 +842,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             if config.eval_epsilon_low > 0:
                 explore = jax.random.uniform(k_explore) < config.eval_epsilon_low
                 action = jnp.where(explore, jax.random.randint(k_random, (), 0, 4), action)
+            action = avoid_stalled(params, x, action, c["stalled_action"])
             obs, env_state, reward, term, trunc, _ = env.step(
                 key, c["env_state"], action, env_params)
             live = ~c["done"]
@@ -811,7 +853,9 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
                 env_state=jax.tree.map(keep, env_state, c["env_state"]),
                 target=target, steps=(c["steps"] + 1) % config.k,
                 done=c["done"] | term | trunc, success=c["success"] | (live & term),
-                ret=c["ret"] + jnp.where(live, reward, 0.0)), record
+                ret=c["ret"] + jnp.where(live, reward, 0.0),
+                stalled_action=jnp.where(jnp.all(obs == c["obs"]) & ~term, action,
+                                         -1).astype(jnp.int32)), record
 
         c, records = jax.lax.scan(one, carry, jax.random.split(k_run, max_steps))
         return dict(records, success=c["success"], ret=c["ret"])

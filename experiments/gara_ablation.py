@@ -118,8 +118,6 @@ def _variants():
                                   rep(ours, forward_model="per_job")),
         "default+shared_steps_32": ("32 gradient steps per update of the shared forward model",
                                     fwd(ours, shared_steps=32)),
-        "default+shared_steps_128": ("128 gradient steps per update of the shared forward model",
-                                     fwd(ours, shared_steps=128)),
         "default+piece_order_parent": ("pieces of a split take its place in the first-box "
                                        "order", rep(ours, piece_order="parent")),
         "default+q_both": ("high-level update of the reached and the targeted entry",
@@ -128,6 +126,17 @@ def _variants():
                                    high(ours, gamma=0.9)),
         "default+avoid_stalled": ("the low level never repeats an action that just left the "
                                   "state unchanged", rep(ours, avoid_stalled_action=True)),
+        "default+avoid_repeated": ("the high level never re-chooses a target at a state where "
+                                   "it chose it in this episode",
+                                   rep(ours, avoid_repeated_decisions=True)),
+        "default+target_200": ("low-level target network copied every 200 steps, not 20",
+                               low(ours, target_update_every=200)),
+        "default+low_lr_0.001": ("low-level Adam step size 0.001, not 0.01",
+                                 low(ours, learning_rate=0.001)),
+        "default+initial_split_1.5": ("initial partition split at the wall's far face x = 1.5",
+                                      rep(ours, initial_split_x=1.5)),
+        "default-refinement": ("diagnostic, not GARA: the default that never analyses (its "
+                               "two initial goals throughout)", rep(ours, min_steps=10**9)),
         "default_planning": ("GaraConfig(planning=True)", rep(ours, planning=True)),
         "reference_planning": ("GaraConfig.reference(planning=True)",
                                GaraConfig.reference(planning=True)),

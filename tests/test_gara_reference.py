@@ -50,12 +50,26 @@ def test_reference_presets_hold_spec_revision_2():
     ("split_epsilon_boost", 0.5), ("relabel_replay", "yes"), ("q_columns", "rows"),
     ("skip_unreachable", None), ("shared_min_records", 0), ("intrinsic", "dense"),
     ("entry_reward", "double"), ("reached_at_start", 0), ("stall_includes_loops", 1),
-    ("self_target", "never"), ("stall_penalty", float("nan"))])
+    ("self_target", "never"), ("stall_penalty", float("nan")), ("piece_order", "first"),
+    ("initial_split_x", 3.0), ("avoid_stalled_action", 1), ("avoid_repeated_decisions", "no"),
+    ("decision_memory", 0)])
 def test_new_options_are_validated(field, value):
     with pytest.raises(ValueError, match=field):
         GaraConfig(**{field: value})
     with pytest.raises(ValueError, match="tie_break"):
         HighLevelConfig(tie_break="first")
+
+
+def test_initial_split_x_moves_the_boundary_of_the_initial_partition():
+    from gara_jax.algorithms.gara import initial_partition
+
+    lo, hi = initial_partition(GaraConfig()).boxes()
+    assert (hi[0, 0], lo[1, 0]) == (1.0, 1.0)  # the reference: the wall's near face
+    lo, hi = initial_partition(GaraConfig(initial_split_x=1.5)).boxes()
+    assert (hi[0, 0], lo[1, 0]) == (1.5, 1.5) and len(lo) == 2
+    # The wall's left face, pressed at rest, is inside the left box only.
+    face = np.array([1.0, 1.0, 0.0, 0.0])
+    assert np.all((lo[0] <= face) & (face <= hi[0])) and not np.all(lo[1] <= face)
 
 
 def test_intrinsic_reward_rules():
@@ -442,6 +456,45 @@ def test_avoid_stalled_action_in_the_greedy_rollout_slides_along_a_bound():
     assert np.all(guarded["obs"][:, 1] == 0.0)  # DOWN keeps y on the bound
     assert x[2] > 0.0 and np.all(np.diff(x) >= 0.0)
     assert x[-1] == pytest.approx(1.0) and np.all(x[x < 1.0] < 1.0)
+
+
+def test_avoid_repeated_decisions_tries_every_target_at_a_state_before_repeating_one():
+    """A low level that never moves (DOWN at the start corner): every decision is at the same
+    state. Greedy, the high level then repeats its best target; with the memory it takes the
+    targets in the order of their Q-values, then (all of them tried) the best again."""
+
+    def decisions(avoid):
+        cfg = HandcraftedConfig(steps_per_epoch=10, eval_episodes=1, low=LOW,
+                                avoid_repeated_decisions=avoid)
+        alg = make_algorithm(cfg)
+        state = alg.init(jax.random.key(0))
+        layers = state.dqn.params["params"]
+        last = sorted(layers)[-1]
+        layers[last]["kernel"] = jnp.zeros_like(layers[last]["kernel"])
+        layers[last]["bias"] = jnp.array([0.0, 0.0, 0.0, 1.0])  # always DOWN
+        q = state.high.q.at[0].set(jnp.array([0.1, 0.6, 0.5, 0.4, 0.3, 0.2]))
+        state = state.replace(high=state.high.replace(q=q))
+        rec = jax.device_get(alg.greedy_rollout(state, jax.random.key(1)))
+        assert np.all(rec["obs"] == rec["obs"][0])
+        steps = np.flatnonzero(rec["deciding"])
+        # Within an option the target in force is the one chosen at its start.
+        assert np.all(rec["target"][steps[0]: steps[1]] == rec["target"][steps[0]])
+        return rec["target"][steps].tolist()
+
+    assert decisions(False)[:8] == [1] * 8
+    assert decisions(True)[:8] == [1, 2, 3, 4, 5, 0, 1, 1]
+    with pytest.raises(ValueError, match="avoid_repeated_decisions"):
+        HandcraftedConfig(avoid_repeated_decisions=True, planning=True)
+
+
+def test_avoid_repeated_decisions_trains():
+    cfg = GaraConfig(steps_per_epoch=400, eval_episodes=1, low=LOW, memory_capacity=500,
+                     avoid_repeated_decisions=True, decision_memory=8)
+    res = tr.train_many(cfg, [0], total_steps=400)
+    assert res.metrics["env_steps"][0, -1] == 400
+    memory = jax.device_get(res.final.states.episode)
+    assert memory.decided_obs.shape == (1, 8, 4) and memory.decided_target.shape == (1, 8)
+    assert np.all(memory.decided_target[0] >= 0)  # 80 decisions filled the 8 slots
 
 
 def test_reached_at_start_pays_no_entry_reward_to_options_starting_inside():

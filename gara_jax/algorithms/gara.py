@@ -122,6 +122,16 @@ class HandcraftedConfig:
             the policy: it acts in training and in the greedy evaluation alike. Pressing
             against a wall face then alternates the press with the next-best move, which
             slides along the face. ``False`` (the reference): no such memory.
+        avoid_repeated_decisions: the Q-learning high level never chooses again, at a state
+            where it has already decided in this episode, a target it chose there: with the
+            environment deterministic, the same option from the same state tends to end where
+            it did before and close the same loop, which a greedy policy then repeats for the
+            rest of the episode (exact returns are common in the U-maze: a stop at a wall or a
+            bound sets the velocity to 0). If every valid goal was chosen there, the choice
+            is unrestricted. Part of the policy (training and greedy evaluation); remembers
+            the last ``decision_memory`` decisions of the episode. ``False`` (the reference).
+        decision_memory: see ``avoid_repeated_decisions`` (at least the decisions of a whole
+            episode, ``ceil(300 / k)`` on the U-maze, by default).
         eval_epsilon_high, eval_epsilon_low: exploration during evaluation (0: greedy).
         terminal_on_entry: stop the low level's bootstrap on entering its goal (the reference
             does not).
@@ -164,6 +174,8 @@ class HandcraftedConfig:
     reached_at_start: bool = True
     self_target: str = "always"
     avoid_stalled_action: bool = False
+    avoid_repeated_decisions: bool = False
+    decision_memory: int = 64
     eval_epsilon_high: float = 0.0
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
@@ -264,6 +276,15 @@ class GaraConfig(HandcraftedConfig):
             columns are 0, as the reference does; ``"zero"``: every piece's column is 0, so
             no piece inherits a value learned for the whole box. Rows (the pieces as starts)
             are always copied.
+        initial_split_x: where the initial partition splits ``x`` (SPEC.md section 2):
+            ``None``, the reference's ``x = 1``, the wall's near face, so that GARA starts
+            from ``[0, 1] x [0, 3]`` and ``[1, 3] x [0, 3]``. The closed right box then holds
+            the wall's left face, which the low level reaches by running into the wall: a
+            learned forward model predicts such a crash to end at ``x = 1`` and the
+            reachability analysis counts it as entering the right box, so the lower left,
+            from where the wall is hit, is found to "reach" it. ``1.5`` splits at the far
+            face instead: the wall belongs to the left box, and only a way round it ends in
+            the right one.
         piece_order: where the pieces of a split come in the first-box rule that decides
             which goal holds a state on a face shared by two boxes (SPEC.md section 2).
             ``"appended"`` (the reference): after every other goal, as their indices are. So
@@ -307,6 +328,7 @@ class GaraConfig(HandcraftedConfig):
     relabel_replay: bool = False
     q_columns: str = "reference"
     piece_order: str = "appended"
+    initial_split_x: float | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -335,6 +357,9 @@ class GaraConfig(HandcraftedConfig):
                 f"{self.split_epsilon_boost}")
         _one_of(self, "q_columns", Q_COLUMNS)
         _one_of(self, "piece_order", PIECE_ORDERS)
+        if self.initial_split_x is not None and not 0.0 < self.initial_split_x < 3.0:
+            raise ValueError("initial_split_x: must be None or lie strictly inside the U-maze's "
+                             f"x range (0, 3), got {self.initial_split_x}")
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
 
     @classmethod
@@ -395,7 +420,11 @@ def _validate_common(cfg):
     if not isinstance(cfg.high, hl.HighLevelConfig):
         raise ValueError(f"high: must be a HighLevelConfig, got {cfg.high!r}")
     _bools(cfg, "planning", "terminal_on_entry", "reached_at_start", "stall_includes_loops",
-           "avoid_stalled_action")
+           "avoid_stalled_action", "avoid_repeated_decisions")
+    _positive_int(cfg, "decision_memory")
+    if cfg.avoid_repeated_decisions and cfg.planning:
+        raise ValueError("avoid_repeated_decisions: applies to the Q-learning high level only "
+                         "(planning=False)")
     _one_of(cfg, "intrinsic", INTRINSIC_RULES)
     _one_of(cfg, "entry_reward", ENTRY_REWARDS)
     _one_of(cfg, "self_target", SELF_TARGETS)
@@ -448,7 +477,8 @@ class Episode:
     ``history[t % (k + 1)]`` holds the state at step ``t`` of the episode, so the last ``k + 1``
     states are at hand; ``prev_lo/prev_hi`` are the previous option's target bounds
     (``has_prev``: an option already ended in this episode). ``stalled_action`` is what
-    ``avoid_stalled_action`` reads.
+    ``avoid_stalled_action`` reads, ``decided_obs``/``decided_target`` what
+    ``avoid_repeated_decisions`` reads (``None`` without it).
     """
 
     length: jax.Array  # steps taken in the current episode
@@ -460,6 +490,8 @@ class Episode:
     prev_hi: jax.Array
     has_prev: jax.Array
     stalled_action: Any = -1  # the last step's action if it left the state unchanged, else -1
+    decided_obs: Any = None  # [M, D] states of this episode's last M decisions
+    decided_target: Any = None  # [M] the targets chosen there (-1: empty slot)
 
 
 @struct.dataclass
@@ -507,7 +539,7 @@ def initial_partition(config):
             f"env: the handcrafted and initial GARA partitions are defined for the U-maze "
             f"environments {U_MAZE_ENVS} only, got {config.env!r}")
     if isinstance(config, GaraConfig):
-        p = part.gara_initial(max_goals=config.max_goals)
+        p = part.gara_initial(max_goals=config.max_goals, split_x=config.initial_split_x)
         if config.piece_order == "parent":
             p = p.replace(rank=jnp.arange(config.max_goals, dtype=jnp.int32))
         return p
@@ -617,14 +649,34 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # A valid tiling covers every state; clamp so a stray -1 can never index out of range.
         return jnp.maximum(part.locate(partition, s), 0).astype(jnp.int32)
 
-    def choose_goal(key, high, partition, here, epsilon):
+    def choose_goal(key, high, partition, here, epsilon, tabu=None):
         if config.planning:
             return hl.plan_goal(key, high.dist, high.succeeded, here, partition.count, epsilon)
         exclude = False
         if config.self_target == "exit_goal":
             exclude = ~(high.exit_known & (locate(partition, high.exit_state) == here))
         return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break,
-                         exclude)
+                         exclude, tabu)
+
+    M = config.decision_memory
+
+    def chosen_here(decided_obs, decided_target, obs):
+        """``[G]``: targets already chosen at exactly ``obs`` (``avoid_repeated_decisions``)."""
+        if not config.avoid_repeated_decisions:
+            return None
+        same = jnp.all(decided_obs == obs, axis=-1) & (decided_target >= 0)
+        hits = (decided_target[:, None] == jnp.arange(G)) & same[:, None]
+        return jnp.any(hits, axis=0)
+
+    def remember_decision(decided_obs, decided_target, obs, target, deciding, reset):
+        """Push ``(obs, target)`` where ``deciding``; empty the memory where ``reset``."""
+        if not config.avoid_repeated_decisions:
+            return decided_obs, decided_target
+        obs_new = jnp.concatenate([obs[None], decided_obs[:-1]])
+        target_new = jnp.concatenate([target[None], decided_target[:-1]])
+        decided_obs = jnp.where(deciding, obs_new, decided_obs)
+        decided_target = jnp.where(deciding, target_new, decided_target)
+        return decided_obs, jnp.where(reset, -1, decided_target)
 
     def avoid_stalled(params, x, action, stalled_action):
         """``action``, unless it is the action that just left the state unchanged: then the
@@ -665,7 +717,11 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             last_intrinsic=jnp.float32(0.0),
             history=jnp.zeros((k + 1 if windows else 1, dim), jnp.float32),
             prev_lo=zeros, prev_hi=zeros, has_prev=jnp.asarray(False),
-            stalled_action=jnp.int32(-1))
+            stalled_action=jnp.int32(-1),
+            decided_obs=(jnp.zeros((M, dim), jnp.float32) if config.avoid_repeated_decisions
+                         else None),
+            decided_target=(jnp.full((M,), -1, jnp.int32) if config.avoid_repeated_decisions
+                            else None))
         fm_params = jax.tree.map(lambda p: p[0], forward.init(k_fm[None]))
         shared = SharedForward(
             params=fm_params, opt_state=forward.init_optimizer(fm_params),
@@ -688,7 +744,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # 1. High level: a new option where none is running.
         deciding = option.steps == 0
         here = locate(partition, s.obs)
-        target = choose_goal(k_high, high, partition, here, high.epsilon)
+        target = choose_goal(k_high, high, partition, here, high.epsilon,
+                             chosen_here(episode.decided_obs, episode.decided_target, s.obs))
         t_lo, t_hi = partition.lo[target], partition.hi[target]
         reached = jnp.asarray(False)
         if config.reached_at_start:
@@ -789,7 +846,10 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             episode_ended=episode_over, episode_success=terminated,
             episode_length=length, episode_return=ret, episode_end_step=env_steps,
         )
+        decided_obs, decided_target = remember_decision(
+            episode.decided_obs, episode.decided_target, s.obs, target, deciding, episode_over)
         episode = episode.replace(
+            decided_obs=decided_obs, decided_target=decided_target,
             length=jnp.where(episode_over, 0, length),
             count=episode.count + episode_over.astype(jnp.int32),
             ret=jnp.where(episode_over, 0.0, ret),
@@ -830,12 +890,18 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         carry = dict(obs=obs, env_state=env_state, target=jnp.int32(0), steps=jnp.int32(0),
                      done=jnp.asarray(False), success=jnp.asarray(False),
                      ret=jnp.float32(0.0), stalled_action=jnp.int32(-1))
+        if config.avoid_repeated_decisions:
+            carry.update(decided_obs=jnp.zeros((M, dim), jnp.float32),
+                         decided_target=jnp.full((M,), -1, jnp.int32))
 
         def one(c, key):
             deciding = c["steps"] == 0
             k_goal, k_explore, k_random = jax.random.split(key, 3)
             here = locate(partition, c["obs"])
-            chosen = choose_goal(k_goal, high, partition, here, config.eval_epsilon_high)
+            tabu = None
+            if config.avoid_repeated_decisions:
+                tabu = chosen_here(c["decided_obs"], c["decided_target"], c["obs"])
+            chosen = choose_goal(k_goal, high, partition, here, config.eval_epsilon_high, tabu)
             target = jnp.where(deciding, chosen, c["target"])
             x = jnp.concatenate([c["obs"], partition.lo[target], partition.hi[target]])
             action = jnp.argmax(dqn.q_values(params, x)).astype(jnp.int32)
@@ -848,7 +914,13 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             live = ~c["done"]
             keep = lambda new, old: jnp.where(live, new, old)
             record = dict(obs=c["obs"], goal=here, target=target, deciding=deciding, live=live)
+            memory = {}
+            if config.avoid_repeated_decisions:
+                memory = dict(zip(("decided_obs", "decided_target"), remember_decision(
+                    c["decided_obs"], c["decided_target"], c["obs"], target, deciding, False),
+                    strict=True))
             return dict(
+                memory,
                 obs=keep(obs, c["obs"]),
                 env_state=jax.tree.map(keep, env_state, c["env_state"]),
                 target=target, steps=(c["steps"] + 1) % config.k,

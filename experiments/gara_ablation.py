@@ -43,6 +43,7 @@ def _variants():
     from gara_jax.agents.dqn import DQNConfig
     from gara_jax.agents.high_level import HighLevelConfig
     from gara_jax.algorithms import GaraConfig, HandcraftedConfig
+    from gara_jax.algorithms.gara import LOW_REFERENCE
 
     ref, ours = GaraConfig.reference(), GaraConfig()
     rep = lambda cfg, **kw: dataclasses.replace(cfg, **kw)
@@ -50,6 +51,7 @@ def _variants():
     low = lambda cfg, **kw: dataclasses.replace(cfg, low=dataclasses.replace(cfg.low, **kw))
     fwd = lambda cfg, **kw: dataclasses.replace(
         cfg, forward=dataclasses.replace(cfg.forward, **kw))
+    ours01, hc01 = rep(ours, low=LOW_REFERENCE), HandcraftedConfig(low=LOW_REFERENCE)
     previous = GaraConfig(
         memory="options", memory_capacity=10_000, forward_model="per_job", tau1=0.7, tau2=0.1,
         small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
@@ -101,6 +103,8 @@ def _variants():
                                rep(ref, min_steps=1000)),
         "ref+target_200": ("low-level target network copied every 200 steps",
                            low(ref, target_update_every=200)),
+        "ref+low_lr_0.001": ("low-level Adam step size 0.001, not 0.01",
+                             low(ref, learning_rate=0.001)),
         # This project's default, and each of its differences from the reference reverted.
         "default": ("GaraConfig(): this project's default", ours),
         "default-partition_membership": ("closed-box membership (the reference)",
@@ -112,46 +116,67 @@ def _variants():
                                 high(ours, tie_break="lowest")),
         "default+relabel": ("with the reference's replay relabelling",
                             rep(ours, relabel_replay=True)),
-        "default+loop_penalty": ("the stall penalty also for returning to the option's start",
-                                 rep(ours, stall_includes_loops=True)),
-        "default+per_job_model": ("a fresh forward model per analysis, fitted until stable",
-                                  rep(ours, forward_model="per_job")),
-        "default+shared_steps_32": ("32 gradient steps per update of the shared forward model",
-                                    fwd(ours, shared_steps=32)),
-        "default+piece_order_parent": ("pieces of a split take its place in the first-box "
-                                       "order", rep(ours, piece_order="parent")),
-        "default+q_both": ("high-level update of the reached and the targeted entry",
-                           high(ours, q_target_entry="both")),
-        "default+high_gamma_0.9": ("high-level discount 0.9 per option, not 0.99",
-                                   high(ours, gamma=0.9)),
-        "default+avoid_stalled": ("the low level never repeats an action that just left the "
-                                  "state unchanged", rep(ours, avoid_stalled_action=True)),
-        "default+avoid_repeated": ("the high level never re-chooses a target at a state where "
-                                   "it chose it in this episode",
-                                   rep(ours, avoid_repeated_decisions=True)),
-        "default+target_200": ("low-level target network copied every 200 steps, not 20",
-                               low(ours, target_update_every=200)),
-        "default+low_lr_0.001": ("low-level Adam step size 0.001, not 0.01",
-                                 low(ours, learning_rate=0.001)),
-        "default+initial_split_1.5": ("initial partition split at the wall's far face x = 1.5",
-                                      rep(ours, initial_split_x=1.5)),
         "default-refinement": ("diagnostic, not GARA: the default that never analyses (its "
                                "two initial goals throughout)", rep(ours, min_steps=10**9)),
         "default_planning": ("GaraConfig(planning=True)", rep(ours, planning=True)),
+        # The previous default (the reference's low-level step size 0.01) and what was tried
+        # on it; its first rows are its own differences from the reference reverted.
+        "default_lr0.01": ("GaraConfig() with the reference's low-level step size 0.01 (the "
+                           "previous default)", ours01),
+        "default_lr0.01-partition_membership": ("closed-box membership (the reference)",
+                                                rep(ours01, goal_membership="box")),
+        "default_lr0.01-reached_at_start": ("entry reward also for options starting inside",
+                                            rep(ours01, reached_at_start=False)),
+        "default_lr0.01-stall_penalty": ("no stall penalty", rep(ours01, stall_penalty=None)),
+        "default_lr0.01-random_ties": ("lowest-index greedy ties (the reference)",
+                                       high(ours01, tie_break="lowest")),
+        "default_lr0.01+relabel": ("with the reference's replay relabelling",
+                                   rep(ours01, relabel_replay=True)),
+        "default_lr0.01+loop_penalty": ("the stall penalty also for returning to the option's "
+                                        "start", rep(ours01, stall_includes_loops=True)),
+        "default_lr0.01+per_job_model": ("a fresh forward model per analysis, fitted until "
+                                         "stable", rep(ours01, forward_model="per_job")),
+        "default_lr0.01+shared_steps_32": ("32 gradient steps per update of the shared forward "
+                                           "model", fwd(ours01, shared_steps=32)),
+        "default_lr0.01+piece_order_parent": ("pieces of a split take its place in the "
+                                              "first-box order",
+                                              rep(ours01, piece_order="parent")),
+        "default_lr0.01+initial_split_1.5": ("initial partition split at the wall's far face "
+                                             "x = 1.5", rep(ours01, initial_split_x=1.5)),
+        "default_lr0.01+q_both": ("high-level update of the reached and the targeted entry",
+                                  high(ours01, q_target_entry="both")),
+        "default_lr0.01+high_gamma_0.9": ("high-level discount 0.9 per option, not 0.99",
+                                          high(ours01, gamma=0.9)),
+        "default_lr0.01+avoid_stalled": ("the low level never repeats an action that just left "
+                                         "the state unchanged",
+                                         rep(ours01, avoid_stalled_action=True)),
+        "default_lr0.01+avoid_repeated": ("the high level never re-chooses a target at a state "
+                                          "where it chose it in this episode",
+                                          rep(ours01, avoid_repeated_decisions=True)),
+        "default_lr0.01+target_200": ("low-level target network copied every 200 steps, not 20",
+                                      low(ours01, target_update_every=200)),
+        "default_lr0.01-refinement": ("diagnostic, not GARA: never analyses (its two initial "
+                                      "goals throughout)", rep(ours01, min_steps=10**9)),
+        "default_lr0.01_planning": ("GaraConfig(planning=True) with step size 0.01",
+                                    rep(ours01, planning=True)),
         "reference_planning": ("GaraConfig.reference(planning=True)",
                                GaraConfig.reference(planning=True)),
         "handcrafted": ("HandcraftedConfig()", HandcraftedConfig()),
-        "handcrafted+avoid_stalled": ("HandcraftedConfig(avoid_stalled_action=True)",
-                                      HandcraftedConfig(avoid_stalled_action=True)),
+        "handcrafted_lr0.01": ("HandcraftedConfig() with the reference's low-level step size "
+                               "0.01 (the previous default)", hc01),
+        "handcrafted_lr0.01+avoid_stalled": (
+            "the previous HandcraftedConfig() with the low-level stall guard",
+            rep(hc01, avoid_stalled_action=True)),
         "handcrafted_reference": ("HandcraftedConfig.reference()", HandcraftedConfig.reference()),
         "handcrafted_previous": ("HandcraftedConfig() before SPEC revision 2 (session 4)",
                                  HandcraftedConfig(low=previous.low, high=previous.high,
                                                    goal_membership="box", reached_at_start=False,
                                                    stall_penalty=None)),
         "handcrafted-gara_changes": (
-            "HandcraftedConfig() without the agent-level changes it shares with GARA's default",
+            "HandcraftedConfig() without the agent-level changes it shares with GARA's default "
+            "(random greedy ties kept)",
             HandcraftedConfig(goal_membership="box", reached_at_start=False,
-                              stall_penalty=None)),
+                              stall_penalty=None, low=LOW_REFERENCE)),
     }
 
 

@@ -1,5 +1,6 @@
 """The GARA ablation script: variants, the greedy-episode classification, a tiny run."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -17,7 +18,11 @@ def test_every_variant_builds_and_the_default_differs_from_the_reference_as_docu
                           "relabel_replay") if getattr(ref, f) != getattr(ours, f)}
     assert differ == {"goal_membership", "reached_at_start", "stall_penalty", "relabel_replay"}
     assert (ref.high.tie_break, ours.high.tie_break) == ("lowest", "random")
+    assert (ref.low.learning_rate, ours.low.learning_rate) == (0.01, 0.001)
     assert ref.memory == ours.memory == "windows"
+    # The previous default's rows are the default with the reference's step size.
+    assert variants["default_lr0.01"][1] == dataclasses.replace(ours, low=ref.low)
+    assert variants["handcrafted_lr0.01"][1].low == ref.low
 
 
 def _records(points, k=2):

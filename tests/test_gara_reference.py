@@ -34,8 +34,13 @@ def test_reference_presets_hold_spec_revision_2():
         "windows", 50_000, "shared", 5000)
     assert (g.tau1, g.tau2, g.small_box_c1, g.split_epsilon_boost) == (0.9, 0.01, 0.5, 1.5)
     assert g.relabel_replay and g.q_columns == "reference" and not g.skip_unreachable
-    assert (g.low.buffer_size, g.low.target_update_every, g.low.loss) == (
-        100_000, 20, "all_actions")
+    assert (g.low.buffer_size, g.low.target_update_every, g.low.loss, g.low.learning_rate) == (
+        100_000, 20, "all_actions", 0.01)
+    assert HandcraftedConfig.reference().low.learning_rate == 0.01
+    # The defaults' one low-level difference from the reference: the step size.
+    for ours, ref in ((GaraConfig(), g), (HandcraftedConfig(), HandcraftedConfig.reference())):
+        assert ours.low.learning_rate == 0.001
+        assert dataclasses.replace(ours.low, learning_rate=0.01) == ref.low
     assert (g.high.epsilon_decrement, g.high.tie_break) == (0.0005, "lowest")
     assert g.entry_reward == "previous_plus_one" and g.goal_membership == "box"
     # The planning variant skips unreachable pairs (only Q-learning has the type bug).

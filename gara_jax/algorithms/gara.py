@@ -66,14 +66,21 @@ SELF_TARGETS = ("always", "exit_goal")
 PIECE_ORDERS = ("appended", "parent")
 
 
+#: The low-level DQN of the reference (SPEC.md section 3.2: Adam step size 0.01) and this
+#: project's default (the same with step size 0.001).
+LOW_REFERENCE = DQNConfig(loss="all_actions", learning_rate=0.01)
+LOW_DEFAULT = DQNConfig(loss="all_actions", learning_rate=0.001)
+
+
 @dataclasses.dataclass(frozen=True)
 class HandcraftedConfig:
     """The two-level agent on SPEC.md's fixed 6-box U-maze partition (no refinement).
 
     ``HandcraftedConfig()`` shares GARA's agent-level defaults (partition membership, no entry
-    reward for options starting inside their target, the stall penalty, random greedy ties;
-    see :class:`GaraConfig`), so the two differ only in their partitions, and keeps the
-    first-entry intrinsic reward; :meth:`reference` is the authors' version.
+    reward for options starting inside their target, the stall penalty, random greedy ties,
+    the low-level step size 0.001; see :class:`GaraConfig`), so the two differ only in their
+    partitions, and keeps the first-entry intrinsic reward; :meth:`reference` is the authors'
+    version.
 
     Attributes:
         env: environment name (one of ``U_MAZE_ENVS``: the partitions are the U-maze's).
@@ -143,8 +150,12 @@ class HandcraftedConfig:
             right-hand goal ``[1, 3] x [0, 3]``.
 
     The low level defaults to the reference's DQN loss (``DQNConfig(loss="all_actions")``,
-    see :class:`~gara_jax.agents.dqn.DQNConfig`); with the textbook loss on the taken action
-    only, the greedy policies of a snapshot are much less reliable.
+    see :class:`~gara_jax.agents.dqn.DQNConfig`; with the textbook loss on the taken action
+    only, the greedy policies of a snapshot are much less reliable) with an Adam step size of
+    0.001 (``LOW_DEFAULT``), not the reference's 0.01 (``LOW_REFERENCE``): at 0.01 the policy
+    of a seed changes so much from one epoch to the next that its greedy evaluation flips
+    between success and failure, and a frozen snapshot is often caught in a loop that the
+    training episodes leave only because the network keeps learning during them.
 
     Example:
         >>> HandcraftedConfig().max_goals
@@ -161,7 +172,7 @@ class HandcraftedConfig:
     k: int = 5
     steps_per_epoch: int = 3000
     eval_episodes: int = 10
-    low: DQNConfig = DQNConfig(loss="all_actions")
+    low: DQNConfig = LOW_DEFAULT
     high: hl.HighLevelConfig = hl.HighLevelConfig()
     planning: bool = False
     max_goals: int = 6
@@ -189,12 +200,14 @@ class HandcraftedConfig:
         """The authors' final maze version of Handcrafted (SPEC.md sections 3.2-3.3, 3.7).
 
         Its own intrinsic reward (1 on every step inside the closed target box, no penalty),
-        no stall penalty, the lowest-index greedy tie-break, and the SPEC defaults the config
-        already has (replay 100,000, target copy every 20 steps, high-level epsilon decrement
-        0.0005). ``overrides`` replace fields, e.g. ``planning=True``.
+        no stall penalty, the lowest-index greedy tie-break, the low-level step size 0.01
+        (``LOW_REFERENCE``), and the SPEC defaults the config already has (replay 100,000,
+        target copy every 20 steps, high-level epsilon decrement 0.0005). ``overrides``
+        replace fields, e.g. ``planning=True``.
         """
         fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
                       reached_at_start=False, stall_penalty=None, self_target="always",
+                      low=LOW_REFERENCE,
                       high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
         fields.update(overrides)
         return cls(**fields)
@@ -205,7 +218,7 @@ class GaraConfig(HandcraftedConfig):
     """GARA: the two-level agent that refines its goal partition by reachability analysis.
 
     ``GaraConfig()`` is this project's default and :meth:`reference` the authors' final maze
-    version. The default is the reference with five changes, each measured by
+    version. The default is the reference with six changes, each measured by
     ``python -m experiments.gara_ablation`` (README, "GARA on the U-maze"):
 
     - ``relabel_replay=False``: no hindsight relabelling of the low-level replay after a split
@@ -218,11 +231,16 @@ class GaraConfig(HandcraftedConfig):
       reward, so within the goal that holds the exit only the exit pays;
     - ``stall_penalty=-1.0``: a step after which the state did not change at all earns -1;
     - ``high.tie_break="random"``: greedy ties between equal Q-values broken at random, not by
-      the lowest index (a fresh table otherwise always sends the agent to goal 0).
+      the lowest index (a fresh table otherwise always sends the agent to goal 0);
+    - ``low.learning_rate=0.001`` (``LOW_DEFAULT``): the low-level DQN's Adam step size, 0.01
+      in the reference; at 0.01 a seed's greedy policy flips between success and failure from
+      one epoch to the next (see :class:`HandcraftedConfig`).
 
     Everything else is the reference's: sliding-window memory, shared forward model, the
-    trigger, thresholds, small-box rule, epsilon boost, Q rows copied, the DQN and high-level
-    hyper-parameters.
+    trigger, thresholds, small-box rule, epsilon boost, Q rows copied, the other DQN and the
+    high-level hyper-parameters. The options added to study the remaining greedy failures
+    (``avoid_stalled_action``, ``avoid_repeated_decisions``, ``piece_order``,
+    ``initial_split_x``, ``forward.shared_steps``) are off, as in the reference.
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
         max_goals: partition capacity; a split that would exceed it is skipped and counted.
@@ -371,7 +389,8 @@ class GaraConfig(HandcraftedConfig):
         ``tau1 = 0.9``, ``tau2 = 0.01``, small boxes reaching iff ``c1 >= 0.5``; the x1.5
         epsilon boost after a split; hindsight relabelling of the low-level replay; Q rows
         (not columns) copied to new pieces; the "previous plus one" entry reward on closed
-        boxes; lowest-index greedy ties; the SPEC's DQN and high-level defaults. Reference
+        boxes; lowest-index greedy ties; the SPEC's DQN (``LOW_REFERENCE``, step size 0.01) and
+        high-level defaults. Reference
         bugs: option-end rows are not forward-model data (section 3.4), and the Q-learning
         variant re-analyses pairs marked unreachable (section 3.5; ``planning=True`` skips
         them, as the reference's planner does). ``overrides`` replace fields.
@@ -387,7 +406,7 @@ class GaraConfig(HandcraftedConfig):
             split_epsilon_boost=1.5, relabel_replay=True, q_columns="reference",
             skip_unreachable=planning, intrinsic="first_entry", entry_reward="previous_plus_one",
             reached_at_start=False, goal_membership="box", stall_penalty=None,
-            self_target="always",
+            self_target="always", low=LOW_REFERENCE,
             high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
         fields.update(overrides)
         return cls(**fields)

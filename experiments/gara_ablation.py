@@ -11,7 +11,8 @@ one process through :func:`gara_jax.train.train_many` and is summarised by
 - ``greedy_last10``: the same evaluation averaged over the last ``LAST_EVALS`` epochs per seed
   (a less noisy view of the same greedy policy: one snapshot of a DQN trained at lr 0.01
   varies from epoch to epoch);
-- ``goals_end``, ``analysed``, ``splits`` (per seed, mean), and the wall time.
+- ``goals_end``, ``analysed``, ``splits`` (per seed, mean), and the wall time;
+- ``per_seed``: the per-seed values of the three success measures (for paired comparisons).
 
 Results go to ``--out`` (JSON, rewritten after every variant; a variant already there with the
 same seeds and steps is not run again unless ``--rerun``), and a markdown table is printed.
@@ -118,6 +119,12 @@ def _variants():
                             rep(ours, relabel_replay=True)),
         "default-refinement": ("diagnostic, not GARA: the default that never analyses (its "
                                "two initial goals throughout)", rep(ours, min_steps=10**9)),
+        "default+piece_order_parent": ("pieces of a split take its place in the first-box "
+                                       "order", rep(ours, piece_order="parent")),
+        "default+initial_split_1.5": ("initial partition split at the wall's far face x = 1.5",
+                                      rep(ours, initial_split_x=1.5)),
+        "default+per_job_model": ("a fresh forward model per analysis, fitted until stable",
+                                  rep(ours, forward_model="per_job")),
         "default_planning": ("GaraConfig(planning=True)", rep(ours, planning=True)),
         # The previous default (the reference's low-level step size 0.01) and what was tried
         # on it; its first rows are its own differences from the reference reverted.
@@ -245,12 +252,17 @@ def summarize_run(result, total_steps: int) -> dict:
     host = [h for h in result.host_info if h]
     per_seed = lambda key: np.sum([np.asarray(h.get(key, 0)) for h in host]) / len(result.seeds)
     n_episodes = [len(s) for s in ep["success"]]
+    last30k = R.per_seed_success_after(ep, max(0, total_steps - LAST_STEPS))
+    greedy_last = np.mean(m["eval_success"][:, -LAST_EVALS:], axis=1)
     return {
         "train_ep300_400": R.ci_summary(R.per_seed_episode_success(ep, *EPISODE_WINDOW)),
-        "train_last30k": R.ci_summary(
-            R.per_seed_success_after(ep, max(0, total_steps - LAST_STEPS))),
+        "train_last30k": R.ci_summary(last30k),
         "greedy_end": R.ci_summary(m["eval_success"][:, -1]),
-        "greedy_last10": R.ci_summary(np.mean(m["eval_success"][:, -LAST_EVALS:], axis=1)),
+        "greedy_last10": R.ci_summary(greedy_last),
+        # Per seed, in seed order, for paired comparisons between variants.
+        "per_seed": {"train_last30k": np.round(np.asarray(last30k, float), 4).tolist(),
+                     "greedy_end": np.round(m["eval_success"][:, -1].astype(float), 4).tolist(),
+                     "greedy_last10": np.round(greedy_last.astype(float), 4).tolist()},
         "goals_end": float(np.mean(m["n_goals"][:, -1])),
         "analysed": float(per_seed("analysed")) if host else 0.0,
         "splits": float(per_seed("splits")) if host else 0.0,

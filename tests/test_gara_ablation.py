@@ -60,6 +60,8 @@ def test_a_tiny_ablation_run_writes_its_json(tmp_path, capsys):
     assert s["train_last30k"]["n"] == 2 and 0.0 <= s["train_last30k"]["mean"] <= 1.0
     assert s["train_ep300_400"]["n"] == 0  # 3,000 steps hold fewer than 300 episodes
     assert sum(s["greedy_outcomes"].values()) == 2
+    assert s["greedy_last10"]["n"] == 2 and len(s["per_seed"]["greedy_end"]) == 2
+    assert np.mean(s["per_seed"]["greedy_end"]) == pytest.approx(s["greedy_end"]["mean"])
     assert "| `handcrafted` |" in capsys.readouterr().out
     # Already there with the same seeds and steps: not run again.
     assert ab.main(["--variants", "handcrafted", "--seeds", "2", "--steps", "3000",

@@ -8,7 +8,11 @@ one process through :func:`gara_jax.train.train_many` and is summarised by
 - ``train_last30k``: success of the training episodes that ended in the last 30,000 steps;
 - ``greedy_end``: greedy evaluation success after the last epoch (``eval_episodes`` episodes
   per seed from the start, both levels greedy);
-- ``goals_end``, ``analysed``, ``splits`` (per seed, mean), and the wall time.
+- ``greedy_last10``: the same evaluation averaged over the last ``LAST_EVALS`` epochs per seed
+  (a less noisy view of the same greedy policy: one snapshot of a DQN trained at lr 0.01
+  varies from epoch to epoch);
+- ``goals_end``, ``analysed``, ``splits`` (per seed, mean), and the wall time;
+- ``per_seed``: the per-seed values of the three success measures (for paired comparisons).
 
 Results go to ``--out`` (JSON, rewritten after every variant; a variant already there with the
 same seeds and steps is not run again unless ``--rerun``), and a markdown table is printed.
@@ -31,6 +35,7 @@ from pathlib import Path
 import numpy as np
 
 LAST_STEPS = 30_000
+LAST_EVALS = 10
 EPISODE_WINDOW = (300, 400)
 
 
@@ -39,11 +44,15 @@ def _variants():
     from gara_jax.agents.dqn import DQNConfig
     from gara_jax.agents.high_level import HighLevelConfig
     from gara_jax.algorithms import GaraConfig, HandcraftedConfig
+    from gara_jax.algorithms.gara import LOW_REFERENCE
 
     ref, ours = GaraConfig.reference(), GaraConfig()
     rep = lambda cfg, **kw: dataclasses.replace(cfg, **kw)
     high = lambda cfg, **kw: dataclasses.replace(cfg, high=dataclasses.replace(cfg.high, **kw))
     low = lambda cfg, **kw: dataclasses.replace(cfg, low=dataclasses.replace(cfg.low, **kw))
+    fwd = lambda cfg, **kw: dataclasses.replace(
+        cfg, forward=dataclasses.replace(cfg.forward, **kw))
+    ours01, hc01 = rep(ours, low=LOW_REFERENCE), HandcraftedConfig(low=LOW_REFERENCE)
     previous = GaraConfig(
         memory="options", memory_capacity=10_000, forward_model="per_job", tau1=0.7, tau2=0.1,
         small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
@@ -95,6 +104,8 @@ def _variants():
                                rep(ref, min_steps=1000)),
         "ref+target_200": ("low-level target network copied every 200 steps",
                            low(ref, target_update_every=200)),
+        "ref+low_lr_0.001": ("low-level Adam step size 0.001, not 0.01",
+                             low(ref, learning_rate=0.001)),
         # This project's default, and each of its differences from the reference reverted.
         "default": ("GaraConfig(): this project's default", ours),
         "default-partition_membership": ("closed-box membership (the reference)",
@@ -106,21 +117,73 @@ def _variants():
                                 high(ours, tie_break="lowest")),
         "default+relabel": ("with the reference's replay relabelling",
                             rep(ours, relabel_replay=True)),
-        "default+loop_penalty": ("the stall penalty also for returning to the option's start",
-                                 rep(ours, stall_includes_loops=True)),
+        "default-refinement": ("diagnostic, not GARA: the default that never analyses (its "
+                               "two initial goals throughout)", rep(ours, min_steps=10**9)),
+        "default+piece_order_parent": ("pieces of a split take its place in the first-box "
+                                       "order", rep(ours, piece_order="parent")),
+        "default+initial_split_1.5": ("initial partition split at the wall's far face x = 1.5",
+                                      rep(ours, initial_split_x=1.5)),
+        "default+per_job_model": ("a fresh forward model per analysis, fitted until stable",
+                                  rep(ours, forward_model="per_job")),
         "default_planning": ("GaraConfig(planning=True)", rep(ours, planning=True)),
+        # The previous default (the reference's low-level step size 0.01) and what was tried
+        # on it; its first rows are its own differences from the reference reverted.
+        "default_lr0.01": ("GaraConfig() with the reference's low-level step size 0.01 (the "
+                           "previous default)", ours01),
+        "default_lr0.01-partition_membership": ("closed-box membership (the reference)",
+                                                rep(ours01, goal_membership="box")),
+        "default_lr0.01-reached_at_start": ("entry reward also for options starting inside",
+                                            rep(ours01, reached_at_start=False)),
+        "default_lr0.01-stall_penalty": ("no stall penalty", rep(ours01, stall_penalty=None)),
+        "default_lr0.01-random_ties": ("lowest-index greedy ties (the reference)",
+                                       high(ours01, tie_break="lowest")),
+        "default_lr0.01+relabel": ("with the reference's replay relabelling",
+                                   rep(ours01, relabel_replay=True)),
+        "default_lr0.01+loop_penalty": ("the stall penalty also for returning to the option's "
+                                        "start", rep(ours01, stall_includes_loops=True)),
+        "default_lr0.01+per_job_model": ("a fresh forward model per analysis, fitted until "
+                                         "stable", rep(ours01, forward_model="per_job")),
+        "default_lr0.01+shared_steps_32": ("32 gradient steps per update of the shared forward "
+                                           "model", fwd(ours01, shared_steps=32)),
+        "default_lr0.01+piece_order_parent": ("pieces of a split take its place in the "
+                                              "first-box order",
+                                              rep(ours01, piece_order="parent")),
+        "default_lr0.01+initial_split_1.5": ("initial partition split at the wall's far face "
+                                             "x = 1.5", rep(ours01, initial_split_x=1.5)),
+        "default_lr0.01+q_both": ("high-level update of the reached and the targeted entry",
+                                  high(ours01, q_target_entry="both")),
+        "default_lr0.01+high_gamma_0.9": ("high-level discount 0.9 per option, not 0.99",
+                                          high(ours01, gamma=0.9)),
+        "default_lr0.01+avoid_stalled": ("the low level never repeats an action that just left "
+                                         "the state unchanged",
+                                         rep(ours01, avoid_stalled_action=True)),
+        "default_lr0.01+avoid_repeated": ("the high level never re-chooses a target at a state "
+                                          "where it chose it in this episode",
+                                          rep(ours01, avoid_repeated_decisions=True)),
+        "default_lr0.01+target_200": ("low-level target network copied every 200 steps, not 20",
+                                      low(ours01, target_update_every=200)),
+        "default_lr0.01-refinement": ("diagnostic, not GARA: never analyses (its two initial "
+                                      "goals throughout)", rep(ours01, min_steps=10**9)),
+        "default_lr0.01_planning": ("GaraConfig(planning=True) with step size 0.01",
+                                    rep(ours01, planning=True)),
         "reference_planning": ("GaraConfig.reference(planning=True)",
                                GaraConfig.reference(planning=True)),
         "handcrafted": ("HandcraftedConfig()", HandcraftedConfig()),
+        "handcrafted_lr0.01": ("HandcraftedConfig() with the reference's low-level step size "
+                               "0.01 (the previous default)", hc01),
+        "handcrafted_lr0.01+avoid_stalled": (
+            "the previous HandcraftedConfig() with the low-level stall guard",
+            rep(hc01, avoid_stalled_action=True)),
         "handcrafted_reference": ("HandcraftedConfig.reference()", HandcraftedConfig.reference()),
         "handcrafted_previous": ("HandcraftedConfig() before SPEC revision 2 (session 4)",
                                  HandcraftedConfig(low=previous.low, high=previous.high,
                                                    goal_membership="box", reached_at_start=False,
                                                    stall_penalty=None)),
         "handcrafted-gara_changes": (
-            "HandcraftedConfig() without the agent-level changes it shares with GARA's default",
+            "HandcraftedConfig() without the agent-level changes it shares with GARA's default "
+            "(random greedy ties kept)",
             HandcraftedConfig(goal_membership="box", reached_at_start=False,
-                              stall_penalty=None)),
+                              stall_penalty=None, low=LOW_REFERENCE)),
     }
 
 
@@ -189,11 +252,17 @@ def summarize_run(result, total_steps: int) -> dict:
     host = [h for h in result.host_info if h]
     per_seed = lambda key: np.sum([np.asarray(h.get(key, 0)) for h in host]) / len(result.seeds)
     n_episodes = [len(s) for s in ep["success"]]
+    last30k = R.per_seed_success_after(ep, max(0, total_steps - LAST_STEPS))
+    greedy_last = np.mean(m["eval_success"][:, -LAST_EVALS:], axis=1)
     return {
         "train_ep300_400": R.ci_summary(R.per_seed_episode_success(ep, *EPISODE_WINDOW)),
-        "train_last30k": R.ci_summary(
-            R.per_seed_success_after(ep, max(0, total_steps - LAST_STEPS))),
+        "train_last30k": R.ci_summary(last30k),
         "greedy_end": R.ci_summary(m["eval_success"][:, -1]),
+        "greedy_last10": R.ci_summary(greedy_last),
+        # Per seed, in seed order, for paired comparisons between variants.
+        "per_seed": {"train_last30k": np.round(np.asarray(last30k, float), 4).tolist(),
+                     "greedy_end": np.round(m["eval_success"][:, -1].astype(float), 4).tolist(),
+                     "greedy_last10": np.round(greedy_last.astype(float), 4).tolist()},
         "goals_end": float(np.mean(m["n_goals"][:, -1])),
         "analysed": float(per_seed("analysed")) if host else 0.0,
         "splits": float(per_seed("splits")) if host else 0.0,
@@ -210,18 +279,27 @@ def _fmt(s: dict) -> str:
     return "-" if s["mean"] is None else f"{s['mean']:.2f} ± {s['ci95']:.2f}"
 
 
+def _last_evals(row: dict) -> str:
+    """``greedy_last10`` with its interval; for rows stored before it existed, the mean alone
+    from the seed-mean greedy curve (the same number, without the per-seed spread)."""
+    if "greedy_last10" in row["summary"]:
+        return _fmt(row["summary"]["greedy_last10"])
+    return f"{np.mean(row['curves']['greedy'][-LAST_EVALS:]):.2f}"
+
+
 def table(rows: dict) -> str:
     """A markdown table of the summarised variants."""
     lines = ["| variant | training, episodes 300-399 | training, last 30k steps | greedy, end "
+             f"| greedy, last {LAST_EVALS} evals "
              "| greedy fails: stall / self-target loop / loop / other | goals | analyses "
-             "| splits |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+             "| splits |", "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for name, r in rows.items():
         s = r["summary"]
         o = s.get("greedy_outcomes") or {}
         fails = " / ".join(str(o.get(k, "-")) for k in GREEDY_OUTCOMES[1:])
         lines.append(f"| `{name}` | {_fmt(s['train_ep300_400'])} | {_fmt(s['train_last30k'])} | "
-                     f"{_fmt(s['greedy_end'])} | {fails} | {s['goals_end']:.1f} | "
-                     f"{s['analysed']:.1f} | {s['splits']:.1f} |")
+                     f"{_fmt(s['greedy_end'])} | {_last_evals(r)} | {fails} | "
+                     f"{s['goals_end']:.1f} | {s['analysed']:.1f} | {s['splits']:.1f} |")
     return "\n".join(lines)
 
 

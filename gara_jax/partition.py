@@ -7,7 +7,11 @@ state and is finite, so arithmetic on padded rows (centres, widths fed to a netw
 NaNs; :func:`locate` also masks them by ``count``.
 
 A state belongs to the first box (lowest index) that contains it, as in the reference: boxes are
-closed and neighbours share faces.
+closed and neighbours share faces. A *ranked* partition (``rank`` set, see
+:meth:`Partition.create`) orders its boxes by ``rank`` instead of by index, and
+:func:`replace_box` puts the pieces of a replaced box in its place in that order, so a face
+that belonged to the replaced box belongs to one of its pieces, not to a neighbour that came
+after it (appended pieces come after every other box).
 
 :func:`locate` is pure JAX. :meth:`Partition.create`, :func:`replace_box`, :func:`can_fit` and
 :func:`check_tiling` are host-side and operate on one (unbatched) partition.
@@ -47,6 +51,7 @@ class Partition:
     lo: jnp.ndarray
     hi: jnp.ndarray
     count: jnp.ndarray
+    rank: jnp.ndarray | None = None  # [max_goals] first-box order; None: by index
 
     @property
     def max_goals(self) -> int:
@@ -57,11 +62,14 @@ class Partition:
         return self.lo.shape[-1]
 
     @classmethod
-    def create(cls, lo, hi, max_goals: int, dtype=jnp.float32) -> Partition:
+    def create(cls, lo, hi, max_goals: int, dtype=jnp.float32, rank=None) -> Partition:
         """A partition made of the boxes ``lo, hi [N, D]``, padded to ``max_goals`` rows.
 
-        Raises ``ValueError`` for invalid boxes and :class:`PartitionFullError` when
-        ``N > max_goals``. The boxes are not checked to tile anything; see :func:`check_tiling`.
+        ``rank``: ``None`` (boxes ordered by index), ``True`` (a ranked partition, initially in
+        index order) or the ``[max_goals]`` ranks themselves (a permutation of
+        ``0 .. max_goals - 1``). Raises ``ValueError`` for invalid boxes and
+        :class:`PartitionFullError` when ``N > max_goals``. The boxes are not checked to tile
+        anything; see :func:`check_tiling`.
         """
         lo, hi = boxes.validate_boxes(lo, hi, "partition boxes")
         if lo.ndim != 2:
@@ -75,8 +83,15 @@ class Partition:
         phi = np.full((max_goals, d), PAD_HI, dtype=np.float64)
         plo[:n] = lo
         phi[:n] = hi
+        if rank is True:
+            rank = np.arange(max_goals)
+        if rank is not None:
+            rank = np.asarray(rank)
+            if sorted(rank.tolist()) != list(range(max_goals)):
+                raise ValueError(f"rank: must be a permutation of 0..{max_goals - 1}, got {rank}")
+            rank = jnp.asarray(rank, jnp.int32)
         return cls(lo=jnp.asarray(plo, dtype), hi=jnp.asarray(phi, dtype),
-                   count=jnp.asarray(n, jnp.int32))
+                   count=jnp.asarray(n, jnp.int32), rank=rank)
 
     def boxes(self) -> tuple[np.ndarray, np.ndarray]:
         """The ``count`` boxes in use, as NumPy arrays ``[count, D]`` (host-side)."""
@@ -87,7 +102,8 @@ class Partition:
 def locate(partition: Partition, states):
     """Index of the first box containing each state ``[..., D]``, or -1 if none does.
 
-    jit- and vmap-able (vmap over a batch of partitions works too).
+    "First" is the lowest index, or in a ranked partition the lowest rank. jit- and vmap-able
+    (vmap over a batch of partitions works too).
 
     Example:
         >>> import jax.numpy as jnp
@@ -99,7 +115,11 @@ def locate(partition: Partition, states):
     s = states[..., None, :]
     inside = jnp.all((partition.lo <= s) & (s <= partition.hi), axis=-1)  # [..., G]
     inside = inside & (jnp.arange(partition.max_goals) < partition.count)
-    first = jnp.argmax(inside, axis=-1).astype(jnp.int32)
+    if partition.rank is None:
+        first = jnp.argmax(inside, axis=-1).astype(jnp.int32)
+    else:
+        order = jnp.where(inside, partition.rank, partition.max_goals)
+        first = jnp.argmin(order, axis=-1).astype(jnp.int32)
     return jnp.where(jnp.any(inside, axis=-1), first, jnp.int32(-1))
 
 
@@ -120,7 +140,9 @@ def can_fit(partition: Partition, k: int) -> bool:
 def replace_box(partition: Partition, index: int, new_lo, new_hi) -> tuple[Partition, np.ndarray]:
     """Replace box ``index`` by the boxes ``new_lo, new_hi [K, D]`` (host-side).
 
-    New box 0 takes ``index``; the others are appended after the last box in use. Returns the
+    New box 0 takes ``index``; the others are appended after the last box in use. In a ranked
+    partition the new boxes also take the replaced box's place in the first-box order (new
+    box ``j`` gets its rank plus ``j``, every later box moves ``K - 1`` down). Returns the
     new partition and the indices ``int32 [K]`` the new boxes got. The new boxes must lie inside
     the replaced one (they are meant to tile it). Never overwrites silently: raises
     :class:`PartitionFullError` when they do not fit (check ``can_fit(partition, K - 1)`` first
@@ -156,8 +178,17 @@ def replace_box(partition: Partition, index: int, new_lo, new_hi) -> tuple[Parti
     indices = np.array([index] + list(range(count, count + k - 1)), dtype=np.int32)
     lo[indices] = cast_lo
     hi[indices] = cast_hi
+    rank = partition.rank
+    if rank is not None:
+        rank = np.array(rank)
+        placed = rank[index]
+        in_use = np.arange(len(rank)) < count
+        rank[in_use & (rank > placed)] += k - 1
+        rank[indices] = placed + np.arange(k)
+        rank[count + k - 1:] = np.arange(count + k - 1, len(rank))
+        rank = jnp.asarray(rank, jnp.int32)
     new = partition.replace(lo=jnp.asarray(lo), hi=jnp.asarray(hi),
-                            count=jnp.asarray(count + k - 1, jnp.int32))
+                            count=jnp.asarray(count + k - 1, jnp.int32), rank=rank)
     return new, indices
 
 

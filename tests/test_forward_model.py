@@ -106,7 +106,8 @@ def test_pad_jobs_shapes():
 
 @pytest.mark.parametrize("field,value", [("hidden", ()), ("learning_rate", 0.0),
                                          ("batch_size", 0), ("max_epochs", 1),
-                                         ("stable_decrease", -1.0)])
+                                         ("stable_decrease", -1.0), ("shared_steps", 0),
+                                         ("shared_steps", 1.5)])
 def test_config_validation_names_the_field(field, value):
     kwargs = {field: value}
     if field == "max_epochs":

@@ -1,5 +1,6 @@
 """The GARA ablation script: variants, the greedy-episode classification, a tiny run."""
 
+import dataclasses
 import json
 
 import numpy as np
@@ -17,7 +18,11 @@ def test_every_variant_builds_and_the_default_differs_from_the_reference_as_docu
                           "relabel_replay") if getattr(ref, f) != getattr(ours, f)}
     assert differ == {"goal_membership", "reached_at_start", "stall_penalty", "relabel_replay"}
     assert (ref.high.tie_break, ours.high.tie_break) == ("lowest", "random")
+    assert (ref.low.learning_rate, ours.low.learning_rate) == (0.01, 0.001)
     assert ref.memory == ours.memory == "windows"
+    # The previous default's rows are the default with the reference's step size.
+    assert variants["default_lr0.01"][1] == dataclasses.replace(ours, low=ref.low)
+    assert variants["handcrafted_lr0.01"][1].low == ref.low
 
 
 def _records(points, k=2):
@@ -55,6 +60,8 @@ def test_a_tiny_ablation_run_writes_its_json(tmp_path, capsys):
     assert s["train_last30k"]["n"] == 2 and 0.0 <= s["train_last30k"]["mean"] <= 1.0
     assert s["train_ep300_400"]["n"] == 0  # 3,000 steps hold fewer than 300 episodes
     assert sum(s["greedy_outcomes"].values()) == 2
+    assert s["greedy_last10"]["n"] == 2 and len(s["per_seed"]["greedy_end"]) == 2
+    assert np.mean(s["per_seed"]["greedy_end"]) == pytest.approx(s["greedy_end"]["mean"])
     assert "| `handcrafted` |" in capsys.readouterr().out
     # Already there with the same seeds and steps: not run again.
     assert ab.main(["--variants", "handcrafted", "--seeds", "2", "--steps", "3000",

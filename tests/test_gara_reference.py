@@ -34,8 +34,13 @@ def test_reference_presets_hold_spec_revision_2():
         "windows", 50_000, "shared", 5000)
     assert (g.tau1, g.tau2, g.small_box_c1, g.split_epsilon_boost) == (0.9, 0.01, 0.5, 1.5)
     assert g.relabel_replay and g.q_columns == "reference" and not g.skip_unreachable
-    assert (g.low.buffer_size, g.low.target_update_every, g.low.loss) == (
-        100_000, 20, "all_actions")
+    assert (g.low.buffer_size, g.low.target_update_every, g.low.loss, g.low.learning_rate) == (
+        100_000, 20, "all_actions", 0.01)
+    assert HandcraftedConfig.reference().low.learning_rate == 0.01
+    # The defaults' one low-level difference from the reference: the step size.
+    for ours, ref in ((GaraConfig(), g), (HandcraftedConfig(), HandcraftedConfig.reference())):
+        assert ours.low.learning_rate == 0.001
+        assert dataclasses.replace(ours.low, learning_rate=0.01) == ref.low
     assert (g.high.epsilon_decrement, g.high.tie_break) == (0.0005, "lowest")
     assert g.entry_reward == "previous_plus_one" and g.goal_membership == "box"
     # The planning variant skips unreachable pairs (only Q-learning has the type bug).
@@ -50,12 +55,26 @@ def test_reference_presets_hold_spec_revision_2():
     ("split_epsilon_boost", 0.5), ("relabel_replay", "yes"), ("q_columns", "rows"),
     ("skip_unreachable", None), ("shared_min_records", 0), ("intrinsic", "dense"),
     ("entry_reward", "double"), ("reached_at_start", 0), ("stall_includes_loops", 1),
-    ("self_target", "never"), ("stall_penalty", float("nan"))])
+    ("self_target", "never"), ("stall_penalty", float("nan")), ("piece_order", "first"),
+    ("initial_split_x", 3.0), ("avoid_stalled_action", 1), ("avoid_repeated_decisions", "no"),
+    ("decision_memory", 0)])
 def test_new_options_are_validated(field, value):
     with pytest.raises(ValueError, match=field):
         GaraConfig(**{field: value})
     with pytest.raises(ValueError, match="tie_break"):
         HighLevelConfig(tie_break="first")
+
+
+def test_initial_split_x_moves_the_boundary_of_the_initial_partition():
+    from gara_jax.algorithms.gara import initial_partition
+
+    lo, hi = initial_partition(GaraConfig()).boxes()
+    assert (hi[0, 0], lo[1, 0]) == (1.0, 1.0)  # the reference: the wall's near face
+    lo, hi = initial_partition(GaraConfig(initial_split_x=1.5)).boxes()
+    assert (hi[0, 0], lo[1, 0]) == (1.5, 1.5) and len(lo) == 2
+    # The wall's left face, pressed at rest, is inside the left box only.
+    face = np.array([1.0, 1.0, 0.0, 0.0])
+    assert np.all((lo[0] <= face) & (face <= hi[0])) and not np.all(lo[1] <= face)
 
 
 def test_intrinsic_reward_rules():
@@ -281,6 +300,27 @@ def test_host_step_splits_boosts_epsilon_and_relabels_the_replay():
     assert int(new2.dqn.buffer.current_index[0]) == 2
 
 
+def test_piece_order_parent_keeps_the_wall_face_in_the_left_region_after_a_split():
+    face = jnp.array([1.0, 0.5, 0.0, 0.0])  # pressed against the wall, at rest
+
+    def face_goal(order):
+        cfg = GaraConfig(**HOST_CFG, piece_order=order)
+        new, info = make_algorithm(cfg).host_update(_crafted_host_state(cfg), epoch=0)
+        assert info["splits"] == 1
+        partition = jax.tree.map(lambda a: a[0], new.partition)
+        count = int(partition.count)
+        # The lower part of the left box (below y = 1.5) went to appended pieces.
+        goal = int(locate(partition, face))
+        return goal, partition, count
+
+    goal, partition, count = face_goal("appended")
+    assert goal == 1 and partition.rank is None  # the right box [1, 3] x [0, 3]
+    goal, partition, count = face_goal("parent")
+    assert goal >= 2 and float(partition.hi[goal, 0]) == 1.0  # a piece of the left box
+    assert sorted(np.asarray(partition.rank[:count]).tolist()) == list(range(count))
+    assert int(partition.rank[1]) == count - 1  # the right box comes after every piece
+
+
 def test_shared_forward_model_needs_records_before_an_analysis():
     cfg = GaraConfig(**dict(HOST_CFG, forward_model="shared"), shared_min_records=3)
     alg = make_algorithm(cfg)
@@ -320,6 +360,32 @@ def test_shared_updates_skip_empty_segments_and_dead_slots():
         jax.tree.leaves(params), jax.tree.leaves(moved), strict=True))
 
 
+def test_shared_steps_take_that_many_gradient_steps_per_update():
+    """``shared_steps=n`` is n single-step updates on fresh samples: the same fit as n calls of
+    the reference's update (here with all rows alike, so every sample is the same batch)."""
+    x, y = jnp.ones((8, 12)), jnp.full((8, 4), 0.5)
+    rows, seg_start, seg_len = fm.pair_segments(np.zeros(8), np.ones(8, bool), np.array([0]))
+    seg = tuple(map(jnp.asarray, (rows, seg_start, seg_len)))
+    key = jax.random.key(3)
+
+    def run(steps, calls):
+        f = fm.make_forward_model(fm.ForwardModelConfig(shared_steps=steps), state_dim=4)
+        params = jax.tree.map(lambda p: p[0], f.init(jax.random.split(jax.random.key(0), 1)))
+        opt = f.init_optimizer(params)
+        update = jax.jit(f.shared_updates)
+        for _ in range(calls):
+            params, opt, mse = update(params, opt, x, y, *seg, jnp.array([True]), key[None])
+        return params, float(mse[0])
+
+    one, mse_one = run(1, 1)
+    many, mse_many = run(20, 1)
+    repeated, mse_repeated = run(1, 20)
+    assert mse_many < 0.5 * mse_one  # twenty steps fit a constant target much better
+    for a, b in zip(jax.tree.leaves(many), jax.tree.leaves(repeated), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+    assert mse_many == pytest.approx(mse_repeated, rel=1e-4)
+
+
 def test_episode_records_match_the_epoch_counts():
     cfg = dataclasses.replace(HandcraftedConfig(steps_per_epoch=400, eval_episodes=1, low=LOW))
     res = tr.train_many(cfg, [0, 1], total_steps=1200)
@@ -355,6 +421,85 @@ def test_stall_penalty_replaces_the_reward_of_steps_that_do_not_move():
     plain = _replay_after_one_epoch(stall_penalty=None)
     stalled = np.all(plain["obs"][:, :4] == plain["next_obs"][:, :4], axis=1)
     assert np.all(plain["reward"][stalled] > -1.0)
+
+
+def test_avoid_stalled_action_never_repeats_a_step_that_did_not_move():
+    def repeats_after_a_stall(t):
+        same_state = np.all(t["obs"][:, :4] == t["next_obs"][:, :4], axis=1)[:-1]
+        repeated = t["action"][1:] == t["action"][:-1]
+        # One epoch of 200 steps: no truncation, so consecutive rows are consecutive steps
+        # unless the exit was reached.
+        return int(np.sum(same_state & repeated & ~t["done"][:-1])), int(same_state.sum())
+
+    guarded, stalls = repeats_after_a_stall(_replay_after_one_epoch(avoid_stalled_action=True))
+    assert guarded == 0 and stalls > 0
+    plain, _ = repeats_after_a_stall(_replay_after_one_epoch(avoid_stalled_action=False))
+    assert plain > 0  # random actions repeat a stalled press about a quarter of the time
+
+
+def _constant_low_level(q_values, **overrides):
+    """Handcrafted with a low level whose Q-values are ``q_values`` in every state."""
+    alg = make_algorithm(HandcraftedConfig(steps_per_epoch=10, eval_episodes=1, low=LOW,
+                                           **overrides))
+    state = alg.init(jax.random.key(0))
+    layers = state.dqn.params["params"]
+    last = sorted(layers)[-1]
+    layers[last]["kernel"] = jnp.zeros_like(layers[last]["kernel"])
+    layers[last]["bias"] = jnp.asarray(q_values, jnp.float32)
+    return alg, state
+
+
+def test_avoid_stalled_action_in_the_greedy_rollout_slides_along_a_bound():
+    """A low level whose Q-values prefer DOWN, then RIGHT, everywhere: from the start corner
+    DOWN never moves; with the guard, every stalled DOWN is followed by a RIGHT, up to the
+    wall face x = 1, where RIGHT stalls too (a one-step memory cannot leave a corner of two
+    stalled actions)."""
+
+    def rollout(avoid):
+        # Q-values of LEFT, RIGHT, UP, DOWN.
+        alg, state = _constant_low_level([0.0, 1.0, 0.0, 2.0], avoid_stalled_action=avoid)
+        return jax.device_get(alg.greedy_rollout(state, jax.random.key(1)))
+
+    plain = rollout(False)
+    assert np.all(plain["obs"][:, :2] == 0.0) and not plain["success"]
+    guarded = rollout(True)
+    x = guarded["obs"][:, 0]
+    assert np.all(guarded["obs"][:, 1] == 0.0)  # DOWN keeps y on the bound
+    assert x[2] > 0.0 and np.all(np.diff(x) >= 0.0)
+    assert x[-1] == pytest.approx(1.0) and np.all(x <= 1.0 + 1e-6)
+
+
+def test_avoid_repeated_decisions_tries_every_target_at_a_state_before_repeating_one():
+    """A low level that never moves (DOWN at the start corner): every decision is at the same
+    state. Greedy, the high level then repeats its best target; with the memory it takes the
+    targets in the order of their Q-values, then (all of them tried) the best again."""
+
+    def decisions(avoid):
+        alg, state = _constant_low_level([0.0, 0.0, 0.0, 1.0],  # always DOWN
+                                         avoid_repeated_decisions=avoid)
+        q = state.high.q.at[0].set(jnp.array([0.1, 0.6, 0.5, 0.4, 0.3, 0.2]))
+        state = state.replace(high=state.high.replace(q=q))
+        rec = jax.device_get(alg.greedy_rollout(state, jax.random.key(1)))
+        assert np.all(rec["obs"] == rec["obs"][0])
+        steps = np.flatnonzero(rec["deciding"])
+        # Within an option the target in force is the one chosen at its start.
+        assert np.all(rec["target"][steps[0]: steps[1]] == rec["target"][steps[0]])
+        return rec["target"][steps].tolist()
+
+    assert decisions(False)[:8] == [1] * 8
+    assert decisions(True)[:8] == [1, 2, 3, 4, 5, 0, 1, 1]
+    with pytest.raises(ValueError, match="avoid_repeated_decisions"):
+        HandcraftedConfig(avoid_repeated_decisions=True, planning=True)
+
+
+def test_avoid_repeated_decisions_trains():
+    cfg = GaraConfig(steps_per_epoch=400, eval_episodes=1, low=LOW, memory_capacity=500,
+                     avoid_repeated_decisions=True, decision_memory=8)
+    res = tr.train_many(cfg, [0], total_steps=400)
+    assert res.metrics["env_steps"][0, -1] == 400
+    memory = jax.device_get(res.final.states.episode)
+    assert memory.decided_obs.shape == (1, 8, 4) and memory.decided_target.shape == (1, 8)
+    assert np.all(memory.decided_target[0] >= 0)  # 80 decisions filled the 8 slots
 
 
 def test_reached_at_start_pays_no_entry_reward_to_options_starting_inside():

@@ -142,3 +142,26 @@ def test_create_validates():
 
 def test_u_maze_domain_constants():
     assert U_MAZE_LO == (0.0, 0.0, -1.0, -1.0) and U_MAZE_HI == (3.0, 3.0, 1.0, 1.0)
+
+
+def test_a_ranked_partition_gives_a_shared_face_to_the_pieces_of_the_box_that_held_it():
+    """GARA's left box [0, 1] x [0, 3] holds the face x = 1 it shares with the right box.
+    Split it in two along y: appended, the upper piece (index 2) loses its part of the face
+    to the right box (index 1); ranked, both pieces keep it."""
+    pieces_lo = [[0.0, 0.0, -1, -1], [0.0, 1.5, -1, -1]]
+    pieces_hi = [[1.0, 1.5, 1, 1], [1.0, 3.0, 1, 1]]
+    face = jnp.array([[1.0, 1.0, 0.0, 0.0], [1.0, 2.5, 0.0, 0.0], [2.0, 2.5, 0.0, 0.0]])
+    plain, idx = replace_box(gara_initial(max_goals=4), 0, pieces_lo, pieces_hi)
+    assert idx.tolist() == [0, 2] and plain.rank is None
+    assert locate(plain, face).tolist() == [0, 1, 1]
+    ranked = gara_initial(max_goals=4).replace(rank=jnp.arange(4))
+    ranked, idx = replace_box(ranked, 0, pieces_lo, pieces_hi)
+    assert idx.tolist() == [0, 2] and ranked.rank.tolist() == [0, 2, 1, 3]
+    assert locate(ranked, face).tolist() == [0, 2, 1]
+    # Splitting the right box then keeps its pieces after the left ones.
+    ranked, idx = replace_box(ranked, 1, [[1.0, 0, -1, -1], [2.0, 0, -1, -1]],
+                              [[2.0, 3, 1, 1], [3.0, 3, 1, 1]])
+    assert idx.tolist() == [1, 3] and ranked.rank.tolist() == [0, 2, 1, 3]
+    assert locate(ranked, jnp.array([[2.0, 1.0, 0.0, 0.0]])).tolist() == [1]
+    with pytest.raises(ValueError, match="rank"):
+        Partition.create([[0.0]], [[1.0]], max_goals=2, rank=[0, 0])

@@ -22,9 +22,9 @@ squared error, minibatches of 32 (SPEC.md section 3.5). Two ways to train it:
   after at least ``min_epochs``. A job that has not stabilised after ``max_epochs`` is reported
   as not stable. One jitted ``lax.while_loop``; jobs that stopped are frozen.
 - :func:`make_forward_model` ``shared_updates``: the reference's way, one network per seed that
-  is never re-initialised; each update is one gradient step on a random sample of at most
-  ``batch_size`` of a pair's data rows, followed by the MSE on a fresh sample (the record the
-  reference's stability rule reads).
+  is never re-initialised; each update is one gradient step (``shared_steps``) on a random
+  sample of at most ``batch_size`` of a pair's data rows, followed by the MSE on a fresh
+  sample (the record the reference's stability rule reads).
 """
 
 from __future__ import annotations
@@ -53,6 +53,11 @@ class ForwardModelConfig:
             over one epoch.
         min_epochs: epochs before the stability test applies.
         max_epochs: epochs after which an unstable model is given up on (for this round).
+        shared_steps: gradient steps of one update of the shared model (GARA's
+            ``forward_model="shared"``), each on a fresh sample of ``batch_size`` of the pair's
+            rows, before the update's MSE record. 1 in the reference, so that its model has
+            taken about one step per episode in which the pair was chosen when it is first
+            analysed; more steps analyse a model that has actually fitted the pair's data.
     """
 
     hidden: tuple[int, ...] = (8, 8)
@@ -61,6 +66,7 @@ class ForwardModelConfig:
     stable_decrease: float = 0.01
     min_epochs: int = 2
     max_epochs: int = 100
+    shared_steps: int = 1
 
     def __post_init__(self):
         if not self.hidden or any(int(h) <= 0 for h in self.hidden):
@@ -77,6 +83,9 @@ class ForwardModelConfig:
         if int(self.max_epochs) != self.max_epochs or self.max_epochs < self.min_epochs:
             raise ValueError(
                 f"max_epochs: must be an integer >= min_epochs, got {self.max_epochs}")
+        if (isinstance(self.shared_steps, bool) or int(self.shared_steps) != self.shared_steps
+                or self.shared_steps < 1):
+            raise ValueError(f"shared_steps: must be an integer >= 1, got {self.shared_steps}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -358,13 +367,21 @@ def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardMod
             params, opt_state = carry
             start, length, live_u, key = inp
             k_fit, k_eval = jax.random.split(key)
-            idx, ok = draw(k_fit, start, length)
-            grads = jax.grad(masked_mse)(params, x[idx], y[idx], ok)
-            updates, new_opt = optimizer.update(grads, opt_state, params)
-            new_params = optax.apply_updates(params, updates)
             go = live_u & (length > 0)
-            params, opt_state = jax.tree.map(lambda a, b: jnp.where(go, a, b),
-                                             (new_params, new_opt), (params, opt_state))
+
+            def gradient_step(carry, k):
+                params, opt_state = carry
+                idx, ok = draw(k, start, length)
+                grads = jax.grad(masked_mse)(params, x[idx], y[idx], ok)
+                updates, new_opt = optimizer.update(grads, opt_state, params)
+                new_params = optax.apply_updates(params, updates)
+                return jax.tree.map(lambda a, b: jnp.where(go, a, b),
+                                    (new_params, new_opt), (params, opt_state)), None
+
+            # One step keeps the reference's key use (the step draws with ``k_fit`` itself).
+            fit_keys = (k_fit[None] if config.shared_steps == 1
+                        else jax.random.split(k_fit, config.shared_steps))
+            (params, opt_state), _ = jax.lax.scan(gradient_step, (params, opt_state), fit_keys)
             idx, ok = draw(k_eval, start, length)
             return (params, opt_state), masked_mse(params, x[idx], y[idx], ok)
 

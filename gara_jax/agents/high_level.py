@@ -181,12 +181,13 @@ def argmax_random_tie(key, values, mask) -> jax.Array:
 
 
 def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random",
-           exclude_current=False) -> jax.Array:
+           exclude_current=False, exclude=None) -> jax.Array:
     """Epsilon-greedy goal from ``Q[current]`` over the valid goals (pass ``epsilon=0`` for greedy).
 
     Greedy ties are broken uniformly at random, or by the lowest index (``tie_break="lowest"``).
     ``exclude_current`` (a bool, may be traced) removes ``current`` from the choice, greedy and
-    random alike (unless it is the only valid goal).
+    random alike (unless it is the only valid goal); ``exclude`` (a ``[max_goals]`` bool mask,
+    may be traced) removes those goals likewise, unless it would remove every valid goal.
 
     Example:
         >>> import jax, jax.numpy as jnp
@@ -200,6 +201,9 @@ def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random",
     valid = valid_goals(n_goals, q.shape[-1])
     others = valid & (jnp.arange(q.shape[-1]) != current)
     valid = jnp.where(exclude_current & jnp.any(others), others, valid)
+    if exclude is not None:
+        kept = valid & ~exclude
+        valid = jnp.where(jnp.any(kept), kept, valid)
     if tie_break == "lowest":
         greedy = jnp.argmax(jnp.where(valid, q[current], -INF)).astype(jnp.int32)
     else:

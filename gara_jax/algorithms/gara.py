@@ -63,6 +63,13 @@ MEMORY_KINDS = ("options", "windows")
 FORWARD_MODELS = ("per_job", "shared")
 Q_COLUMNS = ("copy", "reference", "zero")
 SELF_TARGETS = ("always", "exit_goal")
+PIECE_ORDERS = ("appended", "parent")
+
+
+#: The low-level DQN of the reference (SPEC.md section 3.2: Adam step size 0.01) and this
+#: project's default (the same with step size 0.001).
+LOW_REFERENCE = DQNConfig(loss="all_actions", learning_rate=0.01)
+LOW_DEFAULT = DQNConfig(loss="all_actions", learning_rate=0.001)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -70,9 +77,10 @@ class HandcraftedConfig:
     """The two-level agent on SPEC.md's fixed 6-box U-maze partition (no refinement).
 
     ``HandcraftedConfig()`` shares GARA's agent-level defaults (partition membership, no entry
-    reward for options starting inside their target, the stall penalty, random greedy ties;
-    see :class:`GaraConfig`), so the two differ only in their partitions, and keeps the
-    first-entry intrinsic reward; :meth:`reference` is the authors' version.
+    reward for options starting inside their target, the stall penalty, random greedy ties,
+    the low-level step size 0.001; see :class:`GaraConfig`), so the two differ only in their
+    partitions, and keeps the first-entry intrinsic reward; :meth:`reference` is the authors'
+    version.
 
     Attributes:
         env: environment name (one of ``U_MAZE_ENVS``: the partitions are the U-maze's).
@@ -113,6 +121,24 @@ class HandcraftedConfig:
             towards the goal it already is in makes no progress, and since such an option
             always "succeeds", the reference's hindsight update keeps ``Q[g, g]`` close to the
             row's best value, where a greedy high level can stay forever.
+        avoid_stalled_action: the low level never takes, right after a step that left the
+            state exactly unchanged, the action of that step again: the environment is
+            deterministic, so it would leave the state unchanged again (a fixed point that a
+            greedy policy, once there, never leaves). The best other action by the low level's
+            Q-values is taken instead (also when exploration drew the repeated action). Part of
+            the policy: it acts in training and in the greedy evaluation alike. Pressing
+            against a wall face then alternates the press with the next-best move, which
+            slides along the face. ``False`` (the reference): no such memory.
+        avoid_repeated_decisions: the Q-learning high level never chooses again, at a state
+            where it has already decided in this episode, a target it chose there: with the
+            environment deterministic, the same option from the same state tends to end where
+            it did before and close the same loop, which a greedy policy then repeats for the
+            rest of the episode (exact returns are common in the U-maze: a stop at a wall or a
+            bound sets the velocity to 0). If every valid goal was chosen there, the choice
+            is unrestricted. Part of the policy (training and greedy evaluation); remembers
+            the last ``decision_memory`` decisions of the episode. ``False`` (the reference).
+        decision_memory: see ``avoid_repeated_decisions`` (at least the decisions of a whole
+            episode, ``ceil(300 / k)`` on the U-maze, by default).
         eval_epsilon_high, eval_epsilon_low: exploration during evaluation (0: greedy).
         terminal_on_entry: stop the low level's bootstrap on entering its goal (the reference
             does not).
@@ -124,8 +150,12 @@ class HandcraftedConfig:
             right-hand goal ``[1, 3] x [0, 3]``.
 
     The low level defaults to the reference's DQN loss (``DQNConfig(loss="all_actions")``,
-    see :class:`~gara_jax.agents.dqn.DQNConfig`); with the textbook loss on the taken action
-    only, the greedy policies of a snapshot are much less reliable.
+    see :class:`~gara_jax.agents.dqn.DQNConfig`; with the textbook loss on the taken action
+    only, the greedy policies of a snapshot are much less reliable) with an Adam step size of
+    0.001 (``LOW_DEFAULT``), not the reference's 0.01 (``LOW_REFERENCE``): at 0.01 the policy
+    of a seed changes so much from one epoch to the next that its greedy evaluation flips
+    between success and failure, and a frozen snapshot is often caught in a loop that the
+    training episodes leave only because the network keeps learning during them.
 
     Example:
         >>> HandcraftedConfig().max_goals
@@ -142,7 +172,7 @@ class HandcraftedConfig:
     k: int = 5
     steps_per_epoch: int = 3000
     eval_episodes: int = 10
-    low: DQNConfig = DQNConfig(loss="all_actions")
+    low: DQNConfig = LOW_DEFAULT
     high: hl.HighLevelConfig = hl.HighLevelConfig()
     planning: bool = False
     max_goals: int = 6
@@ -154,6 +184,9 @@ class HandcraftedConfig:
     stall_includes_loops: bool = False
     reached_at_start: bool = True
     self_target: str = "always"
+    avoid_stalled_action: bool = False
+    avoid_repeated_decisions: bool = False
+    decision_memory: int = 64
     eval_epsilon_high: float = 0.0
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
@@ -167,12 +200,14 @@ class HandcraftedConfig:
         """The authors' final maze version of Handcrafted (SPEC.md sections 3.2-3.3, 3.7).
 
         Its own intrinsic reward (1 on every step inside the closed target box, no penalty),
-        no stall penalty, the lowest-index greedy tie-break, and the SPEC defaults the config
-        already has (replay 100,000, target copy every 20 steps, high-level epsilon decrement
-        0.0005). ``overrides`` replace fields, e.g. ``planning=True``.
+        no stall penalty, the lowest-index greedy tie-break, the low-level step size 0.01
+        (``LOW_REFERENCE``), and the SPEC defaults the config already has (replay 100,000,
+        target copy every 20 steps, high-level epsilon decrement 0.0005). ``overrides``
+        replace fields, e.g. ``planning=True``.
         """
         fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
                       reached_at_start=False, stall_penalty=None, self_target="always",
+                      low=LOW_REFERENCE,
                       high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
         fields.update(overrides)
         return cls(**fields)
@@ -183,7 +218,7 @@ class GaraConfig(HandcraftedConfig):
     """GARA: the two-level agent that refines its goal partition by reachability analysis.
 
     ``GaraConfig()`` is this project's default and :meth:`reference` the authors' final maze
-    version. The default is the reference with five changes, each measured by
+    version. The default is the reference with six changes, each measured by
     ``python -m experiments.gara_ablation`` (README, "GARA on the U-maze"):
 
     - ``relabel_replay=False``: no hindsight relabelling of the low-level replay after a split
@@ -196,11 +231,16 @@ class GaraConfig(HandcraftedConfig):
       reward, so within the goal that holds the exit only the exit pays;
     - ``stall_penalty=-1.0``: a step after which the state did not change at all earns -1;
     - ``high.tie_break="random"``: greedy ties between equal Q-values broken at random, not by
-      the lowest index (a fresh table otherwise always sends the agent to goal 0).
+      the lowest index (a fresh table otherwise always sends the agent to goal 0);
+    - ``low.learning_rate=0.001`` (``LOW_DEFAULT``): the low-level DQN's Adam step size, 0.01
+      in the reference; at 0.01 a seed's greedy policy flips between success and failure from
+      one epoch to the next (see :class:`HandcraftedConfig`).
 
     Everything else is the reference's: sliding-window memory, shared forward model, the
-    trigger, thresholds, small-box rule, epsilon boost, Q rows copied, the DQN and high-level
-    hyper-parameters.
+    trigger, thresholds, small-box rule, epsilon boost, Q rows copied, the other DQN and the
+    high-level hyper-parameters. The options added to study the remaining greedy failures
+    (``avoid_stalled_action``, ``avoid_repeated_decisions``, ``piece_order``,
+    ``initial_split_x``, ``forward.shared_steps``) are off, as in the reference.
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
         max_goals: partition capacity; a split that would exceed it is skipped and counted.
@@ -254,6 +294,26 @@ class GaraConfig(HandcraftedConfig):
             columns are 0, as the reference does; ``"zero"``: every piece's column is 0, so
             no piece inherits a value learned for the whole box. Rows (the pieces as starts)
             are always copied.
+        initial_split_x: where the initial partition splits ``x`` (SPEC.md section 2):
+            ``None``, the reference's ``x = 1``, the wall's near face, so that GARA starts
+            from ``[0, 1] x [0, 3]`` and ``[1, 3] x [0, 3]``. The closed right box then holds
+            the wall's left face, which the low level reaches by running into the wall, and
+            the reachability analysis counts a crash predicted to end at ``x = 1`` as entering
+            the right box: in a development run, 5 of 6 seeds that split found the lower left,
+            from where only the wall can be reached in ``k`` steps, to be the part that
+            "reaches" it (README, "GARA on the U-maze"). ``1.5`` splits at the far face
+            instead: the wall belongs to the left box, and only a way round it ends in the
+            right one (measured: no clear change of the greedy success).
+        piece_order: where the pieces of a split come in the first-box rule that decides
+            which goal holds a state on a face shared by two boxes (SPEC.md section 2).
+            ``"appended"`` (the reference): after every other goal, as their indices are. So
+            once the left box ``[0, 1] x [0, 3]`` of the U-maze is split, the wall face
+            ``x = 1``, which it held, passes to the right box ``[1, 3] x [0, 3]`` (index 1)
+            for the states of every piece but the one that keeps index 0: pressing against
+            the wall "enters" the right box again, which ``goal_membership="partition"``
+            ruled out for the initial partition. ``"parent"``: the pieces take the split
+            goal's place in the order (a ranked :class:`~gara_jax.partition.Partition`), so
+            a face keeps belonging to the region that held it.
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -286,6 +346,8 @@ class GaraConfig(HandcraftedConfig):
     split_epsilon_boost: float = 1.5
     relabel_replay: bool = False
     q_columns: str = "reference"
+    piece_order: str = "appended"
+    initial_split_x: float | None = None
 
     def __post_init__(self):
         super().__post_init__()
@@ -313,6 +375,10 @@ class GaraConfig(HandcraftedConfig):
                 "split_epsilon_boost: must be a finite number >= 1, got "
                 f"{self.split_epsilon_boost}")
         _one_of(self, "q_columns", Q_COLUMNS)
+        _one_of(self, "piece_order", PIECE_ORDERS)
+        if self.initial_split_x is not None and not 0.0 < self.initial_split_x < 3.0:
+            raise ValueError("initial_split_x: must be None or lie strictly inside the U-maze's "
+                             f"x range (0, 3), got {self.initial_split_x}")
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
 
     @classmethod
@@ -324,7 +390,8 @@ class GaraConfig(HandcraftedConfig):
         ``tau1 = 0.9``, ``tau2 = 0.01``, small boxes reaching iff ``c1 >= 0.5``; the x1.5
         epsilon boost after a split; hindsight relabelling of the low-level replay; Q rows
         (not columns) copied to new pieces; the "previous plus one" entry reward on closed
-        boxes; lowest-index greedy ties; the SPEC's DQN and high-level defaults. Reference
+        boxes; lowest-index greedy ties; the SPEC's DQN (``LOW_REFERENCE``, step size 0.01) and
+        high-level defaults. Reference
         bugs: option-end rows are not forward-model data (section 3.4), and the Q-learning
         variant re-analyses pairs marked unreachable (section 3.5; ``planning=True`` skips
         them, as the reference's planner does). ``overrides`` replace fields.
@@ -340,7 +407,7 @@ class GaraConfig(HandcraftedConfig):
             split_epsilon_boost=1.5, relabel_replay=True, q_columns="reference",
             skip_unreachable=planning, intrinsic="first_entry", entry_reward="previous_plus_one",
             reached_at_start=False, goal_membership="box", stall_penalty=None,
-            self_target="always",
+            self_target="always", low=LOW_REFERENCE,
             high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
         fields.update(overrides)
         return cls(**fields)
@@ -372,7 +439,12 @@ def _validate_common(cfg):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
     if not isinstance(cfg.high, hl.HighLevelConfig):
         raise ValueError(f"high: must be a HighLevelConfig, got {cfg.high!r}")
-    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start", "stall_includes_loops")
+    _bools(cfg, "planning", "terminal_on_entry", "reached_at_start", "stall_includes_loops",
+           "avoid_stalled_action", "avoid_repeated_decisions")
+    _positive_int(cfg, "decision_memory")
+    if cfg.avoid_repeated_decisions and cfg.planning:
+        raise ValueError("avoid_repeated_decisions: applies to the Q-learning high level only "
+                         "(planning=False)")
     _one_of(cfg, "intrinsic", INTRINSIC_RULES)
     _one_of(cfg, "entry_reward", ENTRY_REWARDS)
     _one_of(cfg, "self_target", SELF_TARGETS)
@@ -424,7 +496,9 @@ class Episode:
 
     ``history[t % (k + 1)]`` holds the state at step ``t`` of the episode, so the last ``k + 1``
     states are at hand; ``prev_lo/prev_hi`` are the previous option's target bounds
-    (``has_prev``: an option already ended in this episode).
+    (``has_prev``: an option already ended in this episode). ``stalled_action`` is what
+    ``avoid_stalled_action`` reads, ``decided_obs``/``decided_target`` what
+    ``avoid_repeated_decisions`` reads (``None`` without it).
     """
 
     length: jax.Array  # steps taken in the current episode
@@ -435,6 +509,9 @@ class Episode:
     prev_lo: jax.Array
     prev_hi: jax.Array
     has_prev: jax.Array
+    stalled_action: Any = -1  # the last step's action if it left the state unchanged, else -1
+    decided_obs: Any = None  # [M, D] states of this episode's last M decisions
+    decided_target: Any = None  # [M] the targets chosen there (-1: empty slot)
 
 
 @struct.dataclass
@@ -482,7 +559,10 @@ def initial_partition(config):
             f"env: the handcrafted and initial GARA partitions are defined for the U-maze "
             f"environments {U_MAZE_ENVS} only, got {config.env!r}")
     if isinstance(config, GaraConfig):
-        return part.gara_initial(max_goals=config.max_goals)
+        p = part.gara_initial(max_goals=config.max_goals, split_x=config.initial_split_x)
+        if config.piece_order == "parent":
+            p = p.replace(rank=jnp.arange(config.max_goals, dtype=jnp.int32))
+        return p
     return part.handcrafted(max_goals=config.max_goals)
 
 
@@ -589,14 +669,43 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # A valid tiling covers every state; clamp so a stray -1 can never index out of range.
         return jnp.maximum(part.locate(partition, s), 0).astype(jnp.int32)
 
-    def choose_goal(key, high, partition, here, epsilon):
+    def choose_goal(key, high, partition, here, epsilon, tabu=None):
         if config.planning:
             return hl.plan_goal(key, high.dist, high.succeeded, here, partition.count, epsilon)
         exclude = False
         if config.self_target == "exit_goal":
             exclude = ~(high.exit_known & (locate(partition, high.exit_state) == here))
         return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break,
-                         exclude)
+                         exclude, tabu)
+
+    M = config.decision_memory
+
+    def chosen_here(decided_obs, decided_target, obs):
+        """``[G]``: targets already chosen at exactly ``obs`` (``avoid_repeated_decisions``)."""
+        if not config.avoid_repeated_decisions:
+            return None
+        same = jnp.all(decided_obs == obs, axis=-1) & (decided_target >= 0)
+        hits = (decided_target[:, None] == jnp.arange(G)) & same[:, None]
+        return jnp.any(hits, axis=0)
+
+    def remember_decision(decided_obs, decided_target, obs, target, deciding, reset):
+        """Push ``(obs, target)`` where ``deciding``; empty the memory where ``reset``."""
+        if not config.avoid_repeated_decisions:
+            return decided_obs, decided_target
+        obs_new = jnp.concatenate([obs[None], decided_obs[:-1]])
+        target_new = jnp.concatenate([target[None], decided_target[:-1]])
+        decided_obs = jnp.where(deciding, obs_new, decided_obs)
+        decided_target = jnp.where(deciding, target_new, decided_target)
+        return decided_obs, jnp.where(reset, -1, decided_target)
+
+    def avoid_stalled(params, x, action, stalled_action):
+        """``action``, unless it is the action that just left the state unchanged: then the
+        best other one (``avoid_stalled_action``)."""
+        if not config.avoid_stalled_action:
+            return action
+        q = dqn.q_values(params, x)
+        other = jnp.argmax(jnp.where(jnp.arange(q.shape[-1]) == stalled_action, -jnp.inf, q))
+        return jnp.where(action == stalled_action, other.astype(action.dtype), action)
 
     def exit_goals(high, partition):
         goal = locate(partition, high.exit_state)
@@ -627,7 +736,12 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             length=jnp.int32(0), count=jnp.int32(0), ret=jnp.float32(0.0),
             last_intrinsic=jnp.float32(0.0),
             history=jnp.zeros((k + 1 if windows else 1, dim), jnp.float32),
-            prev_lo=zeros, prev_hi=zeros, has_prev=jnp.asarray(False))
+            prev_lo=zeros, prev_hi=zeros, has_prev=jnp.asarray(False),
+            stalled_action=jnp.int32(-1),
+            decided_obs=(jnp.zeros((M, dim), jnp.float32) if config.avoid_repeated_decisions
+                         else None),
+            decided_target=(jnp.full((M,), -1, jnp.int32) if config.avoid_repeated_decisions
+                            else None))
         fm_params = jax.tree.map(lambda p: p[0], forward.init(k_fm[None]))
         shared = SharedForward(
             params=fm_params, opt_state=forward.init_optimizer(fm_params),
@@ -650,7 +764,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # 1. High level: a new option where none is running.
         deciding = option.steps == 0
         here = locate(partition, s.obs)
-        target = choose_goal(k_high, high, partition, here, high.epsilon)
+        target = choose_goal(k_high, high, partition, here, high.epsilon,
+                             chosen_here(episode.decided_obs, episode.decided_target, s.obs))
         t_lo, t_hi = partition.lo[target], partition.hi[target]
         reached = jnp.asarray(False)
         if config.reached_at_start:
@@ -671,7 +786,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # 2. Low level acts; the environment steps (auto-reset at episode end).
         goal_in = jnp.concatenate([option.target_lo, option.target_hi])
         x = jnp.concatenate([s.obs, goal_in])
-        action = dqn.act(s.dqn, x, k_act)
+        action = avoid_stalled(s.dqn.params, x, dqn.act(s.dqn, x, k_act),
+                               episode.stalled_action)
         obs, env_state, reward, terminated, truncated, info = env.step_autoreset(
             k_env, s.env_state, action, env_params)
         next_s = info["final_obs"]  # the true next state, before any reset
@@ -685,6 +801,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         intrinsic, inside, first_entry = intrinsic_reward(
             next_s, option.target_lo, option.target_hi, option.reached, config.reach_reward,
             config.outside_penalty, in_target, config.intrinsic, previous)
+        unchanged = jnp.all(next_s == s.obs) & ~terminated
         if config.stall_penalty is not None:
             stalled = jnp.all(next_s == s.obs)
             if config.stall_includes_loops:
@@ -749,13 +866,17 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             episode_ended=episode_over, episode_success=terminated,
             episode_length=length, episode_return=ret, episode_end_step=env_steps,
         )
+        decided_obs, decided_target = remember_decision(
+            episode.decided_obs, episode.decided_target, s.obs, target, deciding, episode_over)
         episode = episode.replace(
+            decided_obs=decided_obs, decided_target=decided_target,
             length=jnp.where(episode_over, 0, length),
             count=episode.count + episode_over.astype(jnp.int32),
             ret=jnp.where(episode_over, 0.0, ret),
             last_intrinsic=jnp.where(episode_over, 0.0, intrinsic),
             history=history,
-            has_prev=episode.has_prev & ~episode_over)
+            has_prev=episode.has_prev & ~episode_over,
+            stalled_action=jnp.where(unchanged & ~episode_over, action, -1).astype(jnp.int32))
         s = s.replace(obs=obs, env_state=env_state, dqn=dqn_state, high=high, option=option,
                       episode=episode, memory=memory, env_steps=env_steps)
         return s, stats
@@ -788,30 +909,45 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         obs, env_state = env.reset(k_reset, env_params)
         carry = dict(obs=obs, env_state=env_state, target=jnp.int32(0), steps=jnp.int32(0),
                      done=jnp.asarray(False), success=jnp.asarray(False),
-                     ret=jnp.float32(0.0))
+                     ret=jnp.float32(0.0), stalled_action=jnp.int32(-1))
+        if config.avoid_repeated_decisions:
+            carry.update(decided_obs=jnp.zeros((M, dim), jnp.float32),
+                         decided_target=jnp.full((M,), -1, jnp.int32))
 
         def one(c, key):
             deciding = c["steps"] == 0
             k_goal, k_explore, k_random = jax.random.split(key, 3)
             here = locate(partition, c["obs"])
-            chosen = choose_goal(k_goal, high, partition, here, config.eval_epsilon_high)
+            tabu = None
+            if config.avoid_repeated_decisions:
+                tabu = chosen_here(c["decided_obs"], c["decided_target"], c["obs"])
+            chosen = choose_goal(k_goal, high, partition, here, config.eval_epsilon_high, tabu)
             target = jnp.where(deciding, chosen, c["target"])
             x = jnp.concatenate([c["obs"], partition.lo[target], partition.hi[target]])
             action = jnp.argmax(dqn.q_values(params, x)).astype(jnp.int32)
             if config.eval_epsilon_low > 0:
                 explore = jax.random.uniform(k_explore) < config.eval_epsilon_low
                 action = jnp.where(explore, jax.random.randint(k_random, (), 0, 4), action)
+            action = avoid_stalled(params, x, action, c["stalled_action"])
             obs, env_state, reward, term, trunc, _ = env.step(
                 key, c["env_state"], action, env_params)
             live = ~c["done"]
             keep = lambda new, old: jnp.where(live, new, old)
             record = dict(obs=c["obs"], goal=here, target=target, deciding=deciding, live=live)
+            memory = {}
+            if config.avoid_repeated_decisions:
+                memory = dict(zip(("decided_obs", "decided_target"), remember_decision(
+                    c["decided_obs"], c["decided_target"], c["obs"], target, deciding, False),
+                    strict=True))
             return dict(
+                memory,
                 obs=keep(obs, c["obs"]),
                 env_state=jax.tree.map(keep, env_state, c["env_state"]),
                 target=target, steps=(c["steps"] + 1) % config.k,
                 done=c["done"] | term | trunc, success=c["success"] | (live & term),
-                ret=c["ret"] + jnp.where(live, reward, 0.0)), record
+                ret=c["ret"] + jnp.where(live, reward, 0.0),
+                stalled_action=jnp.where(jnp.all(obs == c["obs"]) & ~term, action,
+                                         -1).astype(jnp.int32)), record
 
         c, records = jax.lax.scan(one, carry, jax.random.split(k_run, max_steps))
         return dict(records, success=c["success"], ret=c["ret"])

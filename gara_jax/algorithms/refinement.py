@@ -97,6 +97,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         steps, recent = jax.device_get((steps, recent))
         host = jax.device_get(dict(
             count=states.partition.count, lo=states.partition.lo, hi=states.partition.hi,
+            rank=states.partition.rank,
             reachable=states.reachable, unreachable=states.unreachable, blocked=states.blocked,
             host_key=states.host_key, records=states.forward.records,
             mse_last=states.forward.mse_last, mse_prev=states.forward.mse_prev))
@@ -152,17 +153,21 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         # 4. Apply the verdicts seed by seed on host copies, then write everything back.
         arrays = jax.device_get(dict(q=states.high.q, succeeded=states.high.succeeded,
                                      stale=states.option.stale, epsilon=states.high.epsilon))
+        ranked = host["rank"] is not None  # piece_order="parent"
         new = {k: np.array(v) for k, v in dict(
             lo=lo, hi=hi, count=host["count"], q=arrays["q"], succeeded=arrays["succeeded"],
             reachable=host["reachable"], unreachable=host["unreachable"],
             blocked=host["blocked"], stale=arrays["stale"], epsilon=arrays["epsilon"],
             records=jax.device_get(states.forward.records)).items()}
+        if ranked:
+            new["rank"] = np.array(host["rank"])
         seeds = {}
         for (i, s_idx, d_idx), result in zip(jobs, results, strict=True):
             if i not in seeds:
                 n = host["count"][i]
                 seeds[i] = dict(
-                    partition=part.Partition.create(lo[i][:n], hi[i][:n], G),
+                    partition=part.Partition.create(lo[i][:n], hi[i][:n], G,
+                                                    rank=host["rank"][i] if ranked else None),
                     **{name: new[name][i].copy() for name in (
                         "q", "succeeded", "reachable", "unreachable", "blocked", "records")})
             outcome = apply_split(seeds[i], s_idx, d_idx, result, config.q_columns)
@@ -177,13 +182,16 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         for i, seed in seeds.items():
             p = seed["partition"]
             new["lo"][i], new["hi"][i], new["count"][i] = p.lo, p.hi, p.count
+            if ranked:
+                new["rank"][i] = p.rank
             for name in ("q", "succeeded", "reachable", "unreachable", "blocked", "records"):
                 new[name][i] = seed[name]
             new["stale"][i] |= info["changed"][i]
         partition = states.partition.replace(
             lo=jnp.asarray(new["lo"], states.partition.lo.dtype),
             hi=jnp.asarray(new["hi"], states.partition.hi.dtype),
-            count=jnp.asarray(new["count"], states.partition.count.dtype))
+            count=jnp.asarray(new["count"], states.partition.count.dtype),
+            rank=jnp.asarray(new["rank"], jnp.int32) if ranked else None)
         high = states.high.replace(q=jnp.asarray(new["q"]),
                                    succeeded=jnp.asarray(new["succeeded"]),
                                    epsilon=jnp.asarray(new["epsilon"], states.high.epsilon.dtype))

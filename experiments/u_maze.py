@@ -259,12 +259,10 @@ def _snap_json(s) -> dict:
 
 
 def _initial_snapshots(states, n_seeds) -> list:
-    part = getattr(states, "partition", None)
-    if part is None:
-        return [[] for _ in range(n_seeds)]
-    lo, hi, count = (np.asarray(x) for x in (part.lo, part.hi, part.count))
-    return [[{"step": 0, "count": int(count[i]), "lo": lo[i][: count[i]].tolist(),
-              "hi": hi[i][: count[i]].tolist()}] for i in range(n_seeds)]
+    from gara_jax.train import _snapshots
+
+    start = _snapshots(states)  # None for an algorithm without a partition
+    return [[] for _ in range(n_seeds)] if start is None else [[_snap_json(s)] for s in start]
 
 
 def _as_array_metrics(record) -> dict:

@@ -125,6 +125,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds between checkpoints (default 60; 0: after every epoch; a "
                         "method's last epoch is always saved)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--distributed", action="store_true",
+                   help="one of several processes (jax.distributed, from JAX_COORDINATOR_ADDRESS,"
+                        " JAX_NUM_PROCESSES, JAX_PROCESS_ID): seeds over every process's "
+                        "devices; process 0 writes the result files")
 
 
 def _apply_defaults(args: argparse.Namespace) -> argparse.Namespace:
@@ -221,15 +225,17 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
     config = method_config(method, env=args.env, steps_per_epoch=args.steps_per_epoch,
                            eval_episodes=args.eval_episodes)
     n_epochs = n_epochs_for(config, args.steps)
-    path = ckpt_dir / f"{method}.npz"
+    path, legacy = ckpt_dir / method, ckpt_dir / f"{method}.npz"  # orbax; the previous format
     loop = init_loop(config, args.seeds)
     record = {"metrics": {}, "episodes": {f: [[] for _ in range(args.seeds)]
                                           for f in EPISODE_FIELDS},
               "snapshots": _initial_snapshots(loop.states, args.seeds), "wall_time_s": 0.0}
-    if args.resume and path.exists():
+    if args.resume and checkpoint.latest_epoch(path) is not None:
         loop, record = checkpoint.load(path, loop)
+    elif args.resume and legacy.exists():
+        loop, record = checkpoint.load(legacy, loop)
     progress = _Progress(method, args.seeds, n_epochs, loop.epoch, config.steps_per_epoch,
-                         enabled=not args.no_progress)
+                         enabled=not args.no_progress and _is_primary(args))
     t0, base_wall = time.perf_counter(), record["wall_time_s"]
     last_save = t0
     try:
@@ -263,6 +269,23 @@ def _initial_snapshots(states, n_seeds) -> list:
 
     start = _snapshots(states)  # None for an algorithm without a partition
     return [[] for _ in range(n_seeds)] if start is None else [[_snap_json(s)] for s in start]
+
+
+def _is_primary(args) -> bool:
+    """Process 0 of a ``--distributed`` run (the one that writes), or a single process."""
+    if not getattr(args, "distributed", False):
+        return True
+    import jax
+
+    return jax.process_index() == 0
+
+
+def start_distributed(args) -> None:
+    """``--distributed``: join the ``jax.distributed`` run the environment describes."""
+    if getattr(args, "distributed", False):
+        from gara_jax.distributed import initialize_from_env
+
+        initialize_from_env()
 
 
 def _as_array_metrics(record) -> dict:
@@ -397,7 +420,8 @@ def run(args: argparse.Namespace) -> int:
     args = _apply_defaults(args)
     try:
         methods = validate(args)
-    except UsageError as err:
+        start_distributed(args)
+    except (UsageError, ValueError) as err:
         print(f"gara-jax reproduce: error: {err}", file=sys.stderr)
         return 2
     out = Path(args.out)
@@ -410,7 +434,8 @@ def run(args: argparse.Namespace) -> int:
             return 2
     from gara_jax.results import write_json
 
-    write_json(cfg_path, run_cfg)
+    if _is_primary(args):
+        write_json(cfg_path, run_cfg)
     from gara_jax.train import seed_list
 
     seeds = seed_list(args.seeds)
@@ -423,6 +448,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"\ninterrupted: completed epochs are saved; continue with --resume --out "
               f"{args.out}", file=sys.stderr)
         return 130
+    if not _is_primary(args):
+        return 0
     summary = write_outputs(out, methods, records, run_cfg, seeds)
     figures = [f"partitions_{m}.png" for m in methods if m in GARA_METHODS]
     print(f"\nwrote {out}/: metrics.csv, episodes.csv, summary.json, success_curve.png, "

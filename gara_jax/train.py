@@ -8,6 +8,14 @@ on which other seeds share the batch, and a run can be resumed from its :class:`
 Each epoch is one call of ``jit(vmap(train_epoch then evaluate))`` over seeds; algorithms with a
 host step (GARA) then run ``host_update`` on the batched states before the next epoch.
 
+Devices: the seed axis of every agent-state leaf is sharded over a 1-D mesh of ``devices``
+(axis ``"seeds"``, ``NamedSharding(mesh, PartitionSpec("seeds"))``), and the jitted epoch runs
+with those shardings; seeds never communicate, so each device steps its own block of seeds and
+the results are bitwise those of a one-device run. The seed count must be a multiple of the
+device count (a ``ValueError`` naming ``seeds`` and ``devices`` otherwise). Under
+``jax.distributed`` the mesh spans every process's devices: each process computes its
+addressable seeds and runs the host step on them, and the per-epoch metrics are gathered.
+
 ``total_steps`` is rounded *up* to whole epochs: a run takes ``ceil(total_steps /
 steps_per_epoch)`` epochs (120,000 steps are 40 epochs of 3,000).
 """
@@ -24,9 +32,17 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.sharding import Mesh
 
 from gara_jax.algorithms import make_algorithm
 from gara_jax.algorithms.base import Algorithm
+from gara_jax.sharding import (
+    SeedJit,
+    check_divisible,
+    relayout,
+    seed_mesh,
+    seed_sharding,
+)
 
 
 class PartitionSnapshot(NamedTuple):
@@ -183,32 +199,97 @@ def _epoch_fn(alg: Algorithm):
 
 class _Compiled(NamedTuple):
     alg: Algorithm
-    init: Callable  # jit(vmap(init))
-    run: Callable  # jit(vmap(train_epoch then evaluate)), states donated
+    init: SeedJit  # vmap(init) from seed ints: (states, loop key data)
+    run: SeedJit  # vmap(train_epoch then evaluate), states donated
+    mesh: Mesh
 
 
-def _build(config) -> _Compiled:
+def _build(config, mesh: Mesh) -> _Compiled:
     alg = make_algorithm(config)
+
+    def init(seed_ints):
+        init_keys, loop_keys = _split_seed_keys(jax.vmap(jax.random.key)(seed_ints))
+        return jax.vmap(alg.init)(init_keys), loop_keys
+
     # The old states are not reused after an epoch, so XLA may update them in place.
-    run = jax.jit(jax.vmap(_epoch_fn(alg), in_axes=(0, 0, None)), donate_argnums=0)
-    return _Compiled(alg, jax.jit(jax.vmap(alg.init)), run)
+    run = SeedJit(jax.vmap(_epoch_fn(alg), in_axes=(0, 0, None)), batched=(0, 1),
+                  donate_argnums=0)
+    return _Compiled(alg, SeedJit(init), run, mesh)
 
 
 _build_cached = functools.lru_cache(maxsize=8)(_build)
 
 
-def compiled(config) -> _Compiled:
-    """The algorithm and its jitted, seed-vmapped functions, cached per (hashable) config, so
-    that repeated runs of one config compile once per process."""
+def compiled(config, devices=None) -> _Compiled:
+    """The algorithm and its jitted, seed-vmapped, seed-sharded functions on
+    ``seed_mesh(devices)``, cached per (hashable) config and mesh, so that repeated runs of one
+    config compile once per process."""
+    mesh = seed_mesh(devices)
     try:
         hash(config)
     except TypeError:
-        return _build(config)
-    return _build_cached(config)
+        return _build(config, mesh)
+    return _build_cached(config, mesh)
 
 
-def init_loop(config, seeds) -> LoopState:
-    """Fresh per-seed agent states (epoch 0) for ``seeds`` (a count or a sequence).
+def _global_array(values, sharding):
+    """A host array (the same on every process) laid out with ``sharding``."""
+    values = np.asarray(values)
+    return jax.make_array_from_callback(values.shape, sharding, lambda idx: values[idx])
+
+
+def _fully_addressable(tree) -> bool:
+    return all(getattr(x, "is_fully_addressable", True) for x in jax.tree.leaves(tree))
+
+
+def fetch(tree):
+    """``tree`` as host NumPy arrays: ``jax.device_get``, or, for arrays spread over several
+    processes (``jax.distributed``), every process's part gathered (a collective: every
+    process must call it).
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> fetch({"a": jnp.arange(3)})["a"].tolist()
+        [0, 1, 2]
+    """
+    if _fully_addressable(tree):
+        return jax.device_get(tree)
+    from jax.experimental import multihost_utils
+
+    return multihost_utils.process_allgather(tree, tiled=True)
+
+
+def place(loop: LoopState, devices=None) -> LoopState:
+    """``loop`` with its states and keys sharded over ``seed_mesh(devices)`` (no copy for
+    leaves already laid out so; host arrays must be the same on every process).
+
+    Example:
+        >>> from gara_jax.algorithms import HandcraftedConfig
+        >>> loop = place(init_loop(HandcraftedConfig(), 2), 1)
+        >>> loop.keys.sharding.spec == seed_sharding(seed_mesh(1)).spec
+        True
+    """
+    mesh = seed_mesh(devices)
+    check_divisible(len(loop.seeds), mesh)
+    sharding = seed_sharding(mesh)
+
+    def put(x):
+        if isinstance(x, jax.Array) and x.sharding == sharding:
+            return x
+        if isinstance(x, jax.Array) and x.is_fully_addressable and (
+                jax.process_count() == 1):
+            return jax.device_put(x, sharding)
+        if isinstance(x, jax.Array) and jax.dtypes.issubdtype(x.dtype, jax.dtypes.prng_key):
+            impl = jax.random.key_impl(x)
+            return jax.random.wrap_key_data(put(jax.random.key_data(x)), impl=impl)
+        return _global_array(fetch(x), sharding)
+
+    return loop._replace(states=jax.tree.map(put, loop.states), keys=put(loop.keys))
+
+
+def init_loop(config, seeds, *, devices=None) -> LoopState:
+    """Fresh per-seed agent states (epoch 0) for ``seeds`` (a count or a sequence), sharded
+    over ``seed_mesh(devices)``.
 
     Example:
         >>> from gara_jax.algorithms import HandcraftedConfig
@@ -217,22 +298,67 @@ def init_loop(config, seeds) -> LoopState:
         (0, (3, 5), (2, 2))
     """
     seeds = seed_list(seeds)
-    init_keys, loop_keys = _split_seed_keys(jax.vmap(jax.random.key)(jnp.asarray(seeds)))
-    states = compiled(config).init(init_keys)
+    comp = compiled(config, devices)
+    check_divisible(len(seeds), comp.mesh)
+    states, loop_keys = comp.init(_global_array(np.asarray(seeds, np.int32),
+                                                seed_sharding(comp.mesh)))
     return LoopState(states=states, keys=loop_keys, epoch=0, seeds=tuple(seeds))
+
+
+def _local_states(states, mesh: Mesh, n_seeds: int):
+    """The process's own seeds of ``states``, over its own devices (all of them in one
+    process), without copying."""
+    if jax.process_count() == 1:
+        return states
+    local = Mesh(np.asarray([d for d in mesh.devices.flat
+                             if d.process_index == jax.process_index()], dtype=object),
+                 mesh.axis_names)
+    return relayout(states, local, n_seeds * local.devices.size // mesh.devices.size)
+
+
+def _global_states(local, mesh: Mesh, n_seeds: int):
+    """Inverse of :func:`_local_states`; also lays out over ``mesh`` whatever the host step
+    wrote back some other way."""
+    if jax.process_count() == 1:
+        sharding = seed_sharding(mesh)
+        return jax.tree.map(lambda x: x if getattr(x, "sharding", None) == sharding
+                            else jax.device_put(x, sharding), local)
+    return relayout(local, mesh, n_seeds)
+
+
+_SUMMED_INFO = ("triggered", "stable", "analysed", "splits", "reaches", "no_reach",
+                "capacity_skips", "fit_updates")
+
+
+def _gather_info(info: dict) -> dict:
+    """One process's host-step ``info`` combined over processes (identity in one process):
+    counts summed, ``changed`` concatenated in seed order, times the slowest process's."""
+    if jax.process_count() == 1:
+        return info
+    from jax.experimental import multihost_utils
+
+    counts = {k: np.asarray(info[k], np.int64) for k in _SUMMED_INFO if k in info}
+    times = {k: np.asarray(v, np.float64) for k, v in info.items() if k.endswith("_s")}
+    changed = np.asarray(info.get("changed", np.zeros(0, bool)))
+    every = multihost_utils.process_allgather(dict(counts=counts, times=times))
+    out = dict(info)
+    out.update({k: int(np.sum(v)) for k, v in every["counts"].items()})
+    out.update({k: float(np.max(v)) for k, v in every["times"].items()})
+    out["changed"] = np.asarray(multihost_utils.process_allgather(changed, tiled=True), bool)
+    return out
 
 
 def _snapshots(states) -> list | None:
     part = getattr(states, "partition", None)
     if part is None:
         return None
-    lo, hi, n, steps = jax.device_get((part.lo, part.hi, part.count, states.env_steps))
+    lo, hi, n, steps = fetch((part.lo, part.hi, part.count, states.env_steps))
     return [PartitionSnapshot(int(steps[i]), np.asarray(lo[i][: n[i]]), np.asarray(hi[i][: n[i]]),
                               int(n[i])) for i in range(len(n))]
 
 
-def train_epochs(config, seeds, total_steps: int, *,
-                 init_state: LoopState | None = None) -> Iterator[EpochOutput]:
+def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | None = None,
+                 devices=None) -> Iterator[EpochOutput]:
     """Run a multi-seed training epoch by epoch, yielding an :class:`EpochOutput` after each.
 
     The generator form is what checkpointing builds on: save ``out.loop`` after any epoch and
@@ -241,28 +367,39 @@ def train_epochs(config, seeds, total_steps: int, *,
     yielded ``out.loop.states`` is only valid until the generator resumes: save or
     ``jax.device_get`` it before asking for the next epoch. ``init_state`` is consumed likewise.
 
+    ``devices`` (``None``: all, an int: the first ``n``, or a sequence of devices) is the mesh
+    the seeds are sharded over (see the module docstring); the seed count must be a multiple
+    of the device count. An ``init_state`` laid out otherwise is re-laid onto it first.
+
     Example:
         >>> from gara_jax.algorithms import HandcraftedConfig
         >>> cfg = HandcraftedConfig(steps_per_epoch=20, eval_episodes=1)
         >>> [out.epoch for out in train_epochs(cfg, 2, total_steps=40)]
         [0, 1]
     """
-    alg, _, run = compiled(config)
+    alg, _, run, mesh = compiled(config, devices)
     n_epochs = n_epochs_for(config, total_steps)
-    loop = init_loop(config, seeds) if init_state is None else init_state
-    if init_state is not None and loop.epoch > n_epochs:
-        raise ValueError(f"init_state: epoch {loop.epoch} is past the run's {n_epochs} epochs")
+    check_divisible(len(seed_list(seeds)), mesh)
+    if init_state is None:
+        loop = init_loop(config, seeds, devices=mesh)
+    else:
+        if init_state.epoch > n_epochs:
+            raise ValueError(f"init_state: epoch {init_state.epoch} is past the run's "
+                             f"{n_epochs} epochs")
+        loop = place(init_state, mesh)
     for epoch in range(loop.epoch, n_epochs):
         t0 = time.perf_counter()
         states, metrics = run(loop.states, loop.keys, epoch)
-        metrics = jax.device_get(metrics)
+        metrics = fetch(metrics)
         log = metrics.pop("episode_log", None)
         episodes = None if log is None else episodes_of_epoch(log)
         metrics = {k: np.asarray(v) for k, v in metrics.items()}
         info = None
         snaps = [[] for _ in loop.seeds]
         if alg.host_update is not None:
-            states, info = alg.host_update(states, epoch)
+            n = len(loop.seeds)
+            local, info = alg.host_update(_local_states(states, mesh, n), epoch)
+            states, info = _global_states(local, mesh, n), _gather_info(info)
             changed = np.asarray(info.get("changed", np.zeros(len(loop.seeds), bool)))
             if changed.any():
                 current = _snapshots(states)
@@ -277,7 +414,7 @@ def train_epochs(config, seeds, total_steps: int, *,
 def train_many(config, seeds, total_steps: int, *,
                progress: Callable[[int, int, dict], None] | None = None,
                callback: Callable[[EpochOutput], bool | None] | None = None,
-               init_state: LoopState | None = None) -> TrainResult:
+               init_state: LoopState | None = None, devices=None) -> TrainResult:
     """Train ``config``'s algorithm on several seeds at once and collect the curves.
 
     Args:
@@ -291,6 +428,10 @@ def train_many(config, seeds, total_steps: int, *,
             ``out.loop``.
         init_state: a :class:`LoopState` to continue from (its seeds must match ``seeds``);
             its states are consumed (donated to the first epoch run).
+        devices: ``None`` (all devices), a count ``n`` (the first ``n``) or a sequence of
+            devices to shard the seeds over; the seed count must be a multiple of the device
+            count (``ValueError`` naming ``seeds`` and ``devices`` otherwise). Results do not
+            depend on it, bit for bit.
 
     Returns:
         A :class:`TrainResult` covering the epochs run by this call.
@@ -306,14 +447,16 @@ def train_many(config, seeds, total_steps: int, *,
     seeds = seed_list(seeds)
     if init_state is not None and list(init_state.seeds) != seeds:
         raise ValueError(f"init_state: its seeds {list(init_state.seeds)} differ from {seeds}")
-    alg = compiled(config).alg
-    loop = init_loop(config, seeds) if init_state is None else init_state
+    comp = compiled(config, devices)
+    alg = comp.alg
+    check_divisible(len(seeds), comp.mesh)
+    loop = init_loop(config, seeds, devices=comp.mesh) if init_state is None else init_state
     start = _snapshots(loop.states)
     snapshots = [[] for _ in seeds] if start is None else [
         [s] if loop.epoch == 0 else [] for s in start]
     rows, host_info, first_epoch_s, host_s = [], [], None, 0.0
     episodes = None
-    for out in train_epochs(config, seeds, total_steps, init_state=loop):
+    for out in train_epochs(config, seeds, total_steps, init_state=loop, devices=comp.mesh):
         rows.append(out.metrics)
         if out.episodes is not None:
             episodes = {name: [[] for _ in seeds] for name in EPISODE_FIELDS} if (
@@ -360,7 +503,7 @@ def make_train(config, total_steps: int = 120_000):
         >>> metrics["env_steps"].tolist()
         [20, 40]
     """
-    alg, init_many, _ = compiled(config)
+    alg = compiled(config, 1).alg
     n_epochs = n_epochs_for(config, total_steps)
     epoch_fn = _epoch_fn(alg)
 
@@ -378,9 +521,10 @@ def make_train(config, total_steps: int = 120_000):
 
     def train_hosted(key):
         init_key, loop_key = _split_seed_keys(jnp.asarray(key)[None])
-        loop = LoopState(states=init_many(init_key), keys=loop_key, epoch=0, seeds=(0,))
+        loop = LoopState(states=jax.jit(jax.vmap(alg.init))(init_key), keys=loop_key, epoch=0,
+                         seeds=(0,))
         rows = []
-        for out in train_epochs(config, [0], total_steps, init_state=loop):
+        for out in train_epochs(config, [0], total_steps, init_state=loop, devices=1):
             rows.append(out.metrics)
             loop = out.loop
         state = jax.tree.map(lambda a: a[0], loop.states)

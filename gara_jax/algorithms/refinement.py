@@ -19,9 +19,15 @@ Read top to bottom, for all seeds at once (the states are batched over seeds):
    ``max_jobs_per_seed`` per seed, taken by decreasing experience and skipping any that
    touches a goal being split in the same step.
 4. **Splits** on host copies of each seed's padded partition, Q-table, planner graph and marks
-   (:func:`apply_split`), the epsilon boost, then everything written back; with
+   (:func:`apply_split`), the epsilon boost, then everything written back with the layout it
+   came with (seed-sharded over the driver's devices, :mod:`gara_jax.train`); with
    ``relabel_replay`` the low-level replay of every seed whose partition grew gets its
    hindsight copies (:func:`gara_jax.agents.dqn.append_relabelled`).
+
+The host pulls the small per-pair arrays of every seed (partition, marks, experience counts)
+and, of the large ones (the high-level memory), only the rows of the seeds that have a
+triggered pair; everything batched over seeds that stays on the devices (memory lookups, the
+shared model's updates, relabelling, replanning) runs where the seeds live.
 """
 
 from __future__ import annotations
@@ -35,6 +41,7 @@ import numpy as np
 from gara_jax.agents import forward_model as fm
 from gara_jax.agents import high_level as hl
 from gara_jax.networks import mlp_layers
+from gara_jax.sharding import SeedJit
 
 
 def make_host_update(config, locate, exit_goals, dqn, forward):
@@ -53,7 +60,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
     dim = 4
     shared = config.forward_model == "shared"
 
-    @jax.jit
+    @SeedJit
     @jax.vmap
     def memory_goals(state):
         """Goal indices of every memory row and the per-pair experience (device side)."""
@@ -65,20 +72,21 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         steps, recent = fm.pair_experience(start, target, mem, since, G)
         return start, target, steps, recent
 
-    @jax.jit
+    @SeedJit
     @jax.vmap
-    def shared_updates(forward_state, memory, rows, seg_start, seg_len, live, keys):
+    def shared_updates(forward_state, memory, rows, seg_start, seg_len, live, key_data):
         x = jnp.concatenate([memory.start, memory.target_lo, memory.target_hi], axis=-1)
+        keys = jax.random.wrap_key_data(key_data)
         return forward.shared_updates(forward_state.params, forward_state.opt_state, x,
                                       memory.end, rows, seg_start, seg_len, live, keys)
 
-    @jax.jit
+    @SeedJit
     @jax.vmap
     def relabel(dqn_state, partition, where):
         return dqn.append_relabelled(
             dqn_state, lambda t: relabel_to_reached_goal(t, partition, dim), where)
 
-    @jax.jit
+    @SeedJit
     @jax.vmap
     def replan(state):
         """Exact planner distances on the refined partitions."""
@@ -124,7 +132,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             states = states.replace(forward=new_forward)
             jobs = _choose_jobs(config, ready, steps)
             seeds_idx = np.asarray([i for i, _, _ in jobs], int)
-            job_params = jax.tree.map(lambda p: jnp.asarray(p)[seeds_idx], new_forward.params)
+            job_params = jax.tree.map(lambda p: np.asarray(p)[seeds_idx],
+                                      jax.device_get(new_forward.params))
         else:
             jobs = _choose_jobs(config, ok, steps)
             if jobs:
@@ -188,28 +197,41 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
                 new[name][i] = seed[name]
             new["stale"][i] |= info["changed"][i]
         partition = states.partition.replace(
-            lo=jnp.asarray(new["lo"], states.partition.lo.dtype),
-            hi=jnp.asarray(new["hi"], states.partition.hi.dtype),
-            count=jnp.asarray(new["count"], states.partition.count.dtype),
-            rank=jnp.asarray(new["rank"], jnp.int32) if ranked else None)
-        high = states.high.replace(q=jnp.asarray(new["q"]),
-                                   succeeded=jnp.asarray(new["succeeded"]),
-                                   epsilon=jnp.asarray(new["epsilon"], states.high.epsilon.dtype))
+            lo=put_like(new["lo"], states.partition.lo),
+            hi=put_like(new["hi"], states.partition.hi),
+            count=put_like(new["count"], states.partition.count),
+            rank=put_like(new["rank"], states.partition.rank) if ranked else None)
+        high = states.high.replace(q=put_like(new["q"], states.high.q),
+                                   succeeded=put_like(new["succeeded"], states.high.succeeded),
+                                   epsilon=put_like(new["epsilon"], states.high.epsilon))
         states = states.replace(
             partition=partition, high=high,
-            reachable=jnp.asarray(new["reachable"]), unreachable=jnp.asarray(new["unreachable"]),
-            blocked=jnp.asarray(new["blocked"]),
-            option=states.option.replace(stale=jnp.asarray(new["stale"])),
-            forward=states.forward.replace(records=jnp.asarray(new["records"])))
+            reachable=put_like(new["reachable"], states.reachable),
+            unreachable=put_like(new["unreachable"], states.unreachable),
+            blocked=put_like(new["blocked"], states.blocked),
+            option=states.option.replace(stale=put_like(new["stale"], states.option.stale)),
+            forward=states.forward.replace(records=put_like(new["records"],
+                                                            states.forward.records)))
         if config.relabel_replay and info["changed"].any():
-            states = states.replace(dqn=relabel(states.dqn, states.partition,
-                                                jnp.asarray(info["changed"])))
+            states = states.replace(dqn=relabel(states.dqn, states.partition, info["changed"]))
         if config.planning:
             states = states.replace(high=replan(states))
         info["host_s"] = time.perf_counter() - t0
         return states, info
 
     return host_update
+
+
+def put_like(value, like):
+    """Host ``value`` as a device array with ``like``'s dtype and layout (sharding).
+
+    Example:
+        >>> import jax.numpy as jnp, numpy as np
+        >>> out = put_like(np.array([1.5, 2.5]), jnp.zeros(2, jnp.int32))
+        >>> out.dtype, out.sharding == jnp.zeros(2).sharding
+        (dtype('int32'), True)
+    """
+    return jax.device_put(np.asarray(value, like.dtype), like.sharding)
 
 
 def relabel_to_reached_goal(transitions, partition, dim: int = 4):
@@ -261,15 +283,20 @@ def _choose_jobs(config, candidates, steps):
 def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_key, epoch):
     """Fresh forward models for ``jobs``, trained in one batched call: ``(stable, params)``."""
     G = config.max_goals
-    mem = jax.device_get(states.memory)
-    start_goal, target_goal = jax.device_get((start_goal, target_goal))
+    # Only the memory rows of the seeds with a job leave the devices.
+    job_seeds = sorted({i for i, _, _ in jobs})
+    row_of = {seed: r for r, seed in enumerate(job_seeds)}
+    take = jnp.asarray(job_seeds)
+    mem, start_goal, target_goal = jax.device_get(jax.tree.map(
+        lambda a: a[take], (states.memory, start_goal, target_goal)))
     datasets = []
     for i, s_idx, d_idx in jobs:
-        rows = np.flatnonzero((np.arange(len(start_goal[i])) < mem.size[i]) & mem.data[i]
-                              & (start_goal[i] == s_idx) & (target_goal[i] == d_idx))
-        x = np.concatenate([mem.start[i][rows], mem.target_lo[i][rows],
-                            mem.target_hi[i][rows]], axis=1)
-        datasets.append((x, mem.end[i][rows]))
+        r = row_of[i]
+        rows = np.flatnonzero((np.arange(len(start_goal[r])) < mem.size[r]) & mem.data[r]
+                              & (start_goal[r] == s_idx) & (target_goal[r] == d_idx))
+        x = np.concatenate([mem.start[r][rows], mem.target_lo[r][rows],
+                            mem.target_hi[r][rows]], axis=1)
+        datasets.append((x, mem.end[r][rows]))
     n_jobs = len(jobs)
     # Jobs padded to a power of two (at least 8) and rows to 1024 * 4^i (at most the memory
     # capacity): only a few shapes ever get compiled, whatever the jobs and their data sizes.
@@ -301,22 +328,28 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
     """
     G = config.max_goals
     n_seeds = len(ok)
-    mem = jax.device_get(states.memory.replace(start=None, end=None, target_lo=None,
-                                               target_hi=None, reward=None))
-    start_np, target_np = jax.device_get((start_goal, target_goal))
-    since = np.asarray(jax.device_get(states.env_steps)) - config.steps_per_epoch
+    # Only the seeds with a triggered pair get updates; only their memory rows leave the devices.
+    active = np.flatnonzero(ok.reshape(n_seeds, -1).any(axis=1))
+    if len(active) == 0:
+        return np.zeros_like(ok), states.forward, 0
+    take = jnp.asarray(active)
+    mem, start_np, target_np, env_steps = jax.device_get(jax.tree.map(
+        lambda a: a[take], (states.memory.replace(start=None, end=None, target_lo=None,
+                                                  target_hi=None, reward=None),
+                            start_goal, target_goal, states.env_steps)))
+    since = np.asarray(env_steps) - config.steps_per_epoch
     updates, pair_ids = [], []
-    for i in range(n_seeds):
-        filled = (np.arange(len(start_np[i])) < mem.size[i]) & (start_np[i] >= 0) & (
-            target_np[i] >= 0)
-        pair = np.where(filled, start_np[i].astype(np.int64) * G + target_np[i], -1)
+    for r, i in enumerate(active):
+        filled = (np.arange(len(start_np[r])) < mem.size[r]) & (start_np[r] >= 0) & (
+            target_np[r] >= 0)
+        pair = np.where(filled, start_np[r].astype(np.int64) * G + target_np[r], -1)
         pair_ids.append(pair)
         # Option choices: the count-only option-start rows of the window memory, else options.
-        choices = ~mem.data[i] if config.memory == "windows" else True
-        rows = np.flatnonzero(filled & choices & (mem.step[i] > since[i]))
+        choices = ~mem.data[r] if config.memory == "windows" else True
+        rows = np.flatnonzero(filled & choices & (mem.step[r] > since[r]))
         chosen = rows[ok[i].reshape(-1)[pair[rows]]]
         # Unique (episode, pair) in episode order: one update each.
-        key = np.unique(mem.episode[i][chosen].astype(np.int64) * G * G + pair[chosen])
+        key = np.unique(mem.episode[r][chosen].astype(np.int64) * G * G + pair[chosen])
         updates.append(key % (G * G))
     n_max = max(len(u) for u in updates)
     if n_max == 0:
@@ -327,17 +360,16 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
     seg_start = np.zeros((n_seeds, width), np.int32)
     seg_len = np.zeros((n_seeds, width), np.int32)
     live = np.zeros((n_seeds, width), bool)
-    for i, u in enumerate(updates):
+    for r, (i, u) in enumerate(zip(active, updates, strict=True)):
         rows[i], seg_start[i, : len(u)], seg_len[i, : len(u)] = fm.pair_segments(
-            pair_ids[i], mem.data[i] & (pair_ids[i] >= 0), u)
+            pair_ids[r], mem.data[r] & (pair_ids[r] >= 0), u)
         live[i, : len(u)] = True
-    update_keys = jax.vmap(lambda k: jax.random.split(k, width))(keys)
-    params, opt_state, mse = shared_updates(
-        states.forward, states.memory, jnp.asarray(rows), jnp.asarray(seg_start),
-        jnp.asarray(seg_len), jnp.asarray(live), update_keys)
-    mse = np.asarray(mse)
+    update_keys = jax.random.key_data(jax.vmap(lambda k: jax.random.split(k, width))(keys))
+    params, opt_state, mse = shared_updates(states.forward, states.memory, rows, seg_start,
+                                            seg_len, live, update_keys)
+    mse = np.asarray(jax.device_get(mse))
     records, last, prev = (np.array(host[name]) for name in ("records", "mse_last", "mse_prev"))
-    for i, u in enumerate(updates):
+    for i, u in zip(active, updates, strict=True):
         for j, flat in enumerate(u):
             s_idx, d_idx = divmod(int(flat), G)
             prev[i, s_idx, d_idx] = last[i, s_idx, d_idx]
@@ -346,8 +378,9 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
     ready = ok & (records >= config.shared_min_records) & (
         last - prev < config.forward.stable_decrease)
     new_forward = states.forward.replace(
-        params=params, opt_state=opt_state, records=jnp.asarray(records),
-        mse_last=jnp.asarray(last), mse_prev=jnp.asarray(prev))
+        params=params, opt_state=opt_state, records=put_like(records, states.forward.records),
+        mse_last=put_like(last, states.forward.mse_last),
+        mse_prev=put_like(prev, states.forward.mse_prev))
     return ready, new_forward, int(live.sum())
 
 

@@ -1,0 +1,87 @@
+"""Seeds sharded over devices: bitwise the one-device results, device arguments, layouts."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from gara_jax import sharding
+from gara_jax import train as tr
+from gara_jax.agents.dqn import DQNConfig
+from gara_jax.algorithms import HandcraftedConfig
+
+ROOT = Path(__file__).resolve().parent.parent
+TINY = HandcraftedConfig(steps_per_epoch=100, eval_episodes=1,
+                         low=DQNConfig(buffer_size=300, learning_starts=50))
+
+
+def _env(**extra):
+    env = dict(os.environ, **extra)
+    env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT), env.get("PYTHONPATH")) if p)
+    return env
+
+
+def test_four_devices_give_the_one_device_results_bit_for_bit():
+    # Handcrafted, GARA (with its host step) and HIRO, 8 seeds on 1 and on 4 forced CPU
+    # devices, plus an orbax checkpoint of the 4-device run resumed on 2 (tests/_sharded_run.py).
+    proc = subprocess.run(
+        [sys.executable, str(ROOT / "tests" / "_sharded_run.py")], capture_output=True,
+        text=True, timeout=900, cwd=ROOT,
+        env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=4"))
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
+    for name in ("handcrafted", "gara", "hiro"):
+        assert f"{name}: identical on 1 and 4 devices, and resumed on 2" in proc.stdout
+
+
+def test_final_states_are_laid_out_over_the_seed_mesh():
+    res = tr.train_many(TINY, 2, 100, devices=1)
+    spec = sharding.seed_sharding(sharding.seed_mesh(1))
+    for leaf in jax.tree.leaves(res.final.states) + [res.final.keys]:
+        assert leaf.sharding == spec
+
+
+@pytest.mark.parametrize("devices, message", [
+    (0, "devices: a device count must be in"),
+    (len(jax.devices()) + 1, "devices: a device count must be in"),
+    (True, "devices: must be None"),
+    (["cpu"], "devices: must be None"),
+    ([], "devices: must be None"),
+])
+def test_bad_devices_are_rejected(devices, message):
+    with pytest.raises(ValueError, match=message):
+        tr.train_many(TINY, 2, 100, devices=devices)
+
+
+def test_a_sequence_of_devices_and_a_repeated_device():
+    assert sharding.resolve_devices(jax.devices()[:1]) == jax.devices()[:1]
+    with pytest.raises(ValueError, match="devices: must be distinct"):
+        sharding.resolve_devices(jax.devices()[:1] * 2)
+
+
+def test_seeds_that_do_not_divide_over_the_devices_are_rejected():
+    mesh = sharding.seed_mesh(1)
+    fake = type("FakeMesh", (), {"devices": np.empty(4, object)})()
+    with pytest.raises(ValueError, match=r"seeds/devices: 6 seeds do not divide over 4 "
+                                         r"devices.*devices=3"):
+        sharding.check_divisible(6, fake)
+    sharding.check_divisible(6, mesh)  # one device: anything goes
+
+
+def test_seed_jit_splits_host_arguments_and_runs_one_seed_blocks_twice():
+    calls = []
+
+    def f(x, c):
+        calls.append(x.shape)  # traced once per distinct block shape
+        return 2 * x + c
+
+    fn = sharding.SeedJit(jax.vmap(f, in_axes=(0, None)), batched=(0,))
+    x = jax.device_put(np.arange(3.0), sharding.seed_sharding(sharding.seed_mesh(1)))
+    np.testing.assert_array_equal(np.asarray(fn(x, 1.0)), [1.0, 3.0, 5.0])
+    one = jax.device_put(np.arange(1.0), sharding.seed_sharding(sharding.seed_mesh(1)))
+    out = fn(one, 0.0)
+    assert out.shape == (1,) and float(out[0]) == 0.0
+    assert calls == [(), ()]  # vmapped: per-seed shapes; the one-seed block ran as a batch of 2

@@ -6,15 +6,15 @@ ends only that size) runs the training driver's own jitted, seed-sharded epoch
 (:func:`gara_jax.train.compiled`) on ``--devices`` devices:
 
 1. ``init_loop``; the state's bytes (the agent-state pytree, all seeds) are counted;
-2. the epoch is compiled (timed apart; one compilation per device);
-3. one warm-up epoch (it also fills the replay buffers: learning starts within it);
-4. ``--epochs`` timed epochs, each with ``block_until_ready``; for GARA the host step after
+2. a first epoch, which compiles (one compilation per device) and fills the replay buffers
+   (learning starts within it); compilation is reported as its time minus a timed epoch's;
+3. ``--epochs`` timed epochs, each with ``block_until_ready``; for GARA the host step after
    the timed epochs is timed apart;
-5. the process's peak resident set size (``ru_maxrss``) is read at the end.
+4. the process's peak resident set size (``ru_maxrss``) is read at the end.
 
-Epochs are shortened to ``--steps-per-epoch`` (default 1,000; 250 for HIRO, whose TD3 update
-makes it ~20x slower) and the learners start after ``learning_starts = steps_per_epoch / 2``
-transitions, so the timed epochs run every gradient step; everything else is the default
+Epochs are shortened to ``--steps-per-epoch`` (default 1,000) and the learners start after
+``steps_per_epoch / 2`` transitions (HIRO's high level after 100, its TD3 batch size), so the
+timed epochs run every gradient step; everything else is the default
 config (buffer sizes, networks), so memory is the real runs'. A size is not started when its
 predicted need (state bytes from ``jax.eval_shape`` x ``--memory-factor``) exceeds
 ``--max-memory-gb`` (default: half the memory available at the start, since other jobs share
@@ -51,7 +51,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 RESULTS = Path(__file__).resolve().parent / "results" / "scaling.json"
 ALGORITHMS = ("handcrafted", "gara", "hiro")
-DEFAULT_STEPS = {"handcrafted": 1000, "gara": 1000, "hiro": 250}
+DEFAULT_STEPS = {"handcrafted": 1000, "gara": 1000, "hiro": 1000}
 
 
 def make_config(name: str, steps_per_epoch: int):
@@ -65,8 +65,8 @@ def make_config(name: str, steps_per_epoch: int):
     low = dataclasses.replace(base.low, learning_starts=min(base.low.learning_starts, starts))
     changes = {"steps_per_epoch": steps_per_epoch, "low": low}
     if name == "hiro":  # the high level stores one transition per k steps
-        changes["high"] = dataclasses.replace(
-            base.high, learning_starts=min(base.high.learning_starts, starts // base.k))
+        high_starts = max(base.high.batch_size, min(base.high.learning_starts, starts // base.k))
+        changes["high"] = dataclasses.replace(base.high, learning_starts=high_starts)
     return dataclasses.replace(base, **changes)
 
 
@@ -109,29 +109,26 @@ def measure(name: str, n_seeds: int, steps_per_epoch: int, epochs: int, devices)
     t0 = time.perf_counter()
     states, _ = jax.block_until_ready(comp.run(states, keys, 0))
     first_epoch_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    states, _ = jax.block_until_ready(comp.run(states, keys, 1))  # warm-up, compiled
-    warm_s = time.perf_counter() - t0
     times = []
     for e in range(epochs):
         t0 = time.perf_counter()
-        states, metrics = jax.block_until_ready(comp.run(states, keys, 2 + e))
+        states, metrics = jax.block_until_ready(comp.run(states, keys, 1 + e))
         times.append(time.perf_counter() - t0)
     row = {
         "algorithm": name, "n_seeds": n_seeds, "devices": n_dev,
         "device_kind": str(comp.mesh.devices.flat[0].device_kind),
         "steps_per_epoch": steps_per_epoch, "timed_epochs": epochs,
         "init_s": init_s,
-        # The first epoch's call compiles (once per device) and runs one epoch; a warm epoch
-        # took warm_s, so compilation is about their difference.
-        "first_epoch_s": first_epoch_s, "compile_s": max(0.0, first_epoch_s - warm_s),
+        # The first epoch's call compiles (once per device) and runs one epoch (with fewer
+        # gradient steps: the buffers fill first), so compilation is at most the difference.
+        "first_epoch_s": first_epoch_s, "compile_s": max(0.0, first_epoch_s - min(times)),
         "epoch_s": times, "epoch_s_min": min(times),
         "agent_steps_per_s": n_seeds * steps_per_epoch / min(times),
         "state_bytes": total_bytes, "state_bytes_per_seed": total_bytes / n_seeds,
     }
     if comp.alg.host_update is not None:
         t0 = time.perf_counter()
-        states, info = comp.alg.host_update(states, 2 + epochs)
+        states, info = comp.alg.host_update(states, 1 + epochs)
         jax.block_until_ready(states)
         row["host_step_s"] = time.perf_counter() - t0
         row["host_step_triggered"] = int(info["triggered"])
@@ -225,6 +222,11 @@ def available_memory_bytes() -> int | None:
     return None
 
 
+def _write(path: Path, result: dict) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(result, indent=2, default=float))
+
+
 def table(rows) -> str:
     lines = ["| algorithm | seeds | devices | agent steps/s | epoch (s) | compile (s) | "
              "state per seed (MB) | peak RSS (GB) | peak RSS per seed (MB) |",
@@ -251,7 +253,7 @@ def main(argv=None):
                         choices=ALGORITHMS)
     parser.add_argument("--seeds", type=int, nargs="+", default=[1, 20, 128, 512, 1024])
     parser.add_argument("--steps-per-epoch", type=int, default=None,
-                        help="override the per-algorithm default (1000; HIRO 250)")
+                        help="environment steps per epoch (default 1000)")
     parser.add_argument("--epochs", type=int, default=1, help="timed epochs per size")
     parser.add_argument("--devices", default="1", help="devices per size: a count or 'all'")
     parser.add_argument("--max-memory-gb", type=float, default=None,
@@ -263,6 +265,8 @@ def main(argv=None):
     parser.add_argument("--device-counts", type=int, nargs="*", default=None,
                         help="also check 8 seeds on these device counts (forced CPU devices "
                              "on a CPU); with no value: 1 2 4")
+    parser.add_argument("--merge", action="store_true",
+                        help="keep the rows of the existing JSON that this run does not measure")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args(argv)
 
@@ -299,6 +303,7 @@ def main(argv=None):
                        "skipped": why}
             row["load_average"] = os.getloadavg()
             result["rows"].append(row)
+            _write(args.out.with_suffix(".partial.json"), result)  # survives a later crash
             print(f"{name:12s} seeds={n:5d}  " + (
                 f"{row['agent_steps_per_s']:10,.0f} steps/s  peak RSS "
                 f"{row['peak_rss_bytes'] / 1e9:.2f} GB  load {row['load_average'][0]:.1f}"
@@ -312,6 +317,17 @@ def main(argv=None):
         rows, why = _run_worker(job, _env(flags), args.timeout_s * 2)
         result["device_check"] = rows if rows is not None else {"failed": why}
     result["load_average_end"] = os.getloadavg()
+    if args.merge and args.out.exists():
+        old = json.loads(args.out.read_text())
+        measured = {(r["algorithm"], r["n_seeds"]) for r in result["rows"]}
+        kept = [r for r in old["rows"] if (r["algorithm"], r["n_seeds"]) not in measured]
+        result["rows"] = sorted(kept + result["rows"], key=lambda r: (
+            ALGORITHMS.index(r["algorithm"]), r["n_seeds"]))
+        if result["device_check"] is None:
+            result["device_check"] = old.get("device_check")
+        result["earlier_runs"] = old.get("earlier_runs", []) + [
+            {k: old.get(k) for k in ("memory_available_bytes_at_start", "memory_limit_bytes",
+                                     "load_average_end")}]
     print()
     print(table(result["rows"]))
     if isinstance(result["device_check"], list):
@@ -320,8 +336,8 @@ def main(argv=None):
         for r in result["device_check"]:
             print(f"| {r['algorithm']} | {r['n_seeds']} | {r['devices']} | "
                   f"{r['wall_s_two_epochs']:.1f} | {r['bitwise_equal_to_1_device']} |")
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2, default=float))
+    _write(args.out, result)
+    args.out.with_suffix(".partial.json").unlink(missing_ok=True)
     print(f"wrote {args.out}")
     return result
 

@@ -1,7 +1,8 @@
 """Run by tests/test_sharding.py in a subprocess with 4 forced CPU devices: trains each
 algorithm's tiny config on 8 seeds over 1 and over 4 devices and checks, bit for bit, that
 the metrics and final states agree, that the 4-device states really lie over 4 devices, and
-that an orbax checkpoint of the 4-device run resumes exactly on another device count."""
+that an orbax checkpoint written by the 4-device run after its first epoch, restored onto one
+device, continues exactly (each device compiles the epoch once, so compilation dominates)."""
 
 import sys
 import tempfile
@@ -47,7 +48,13 @@ def main(names):
     for name in names:
         cfg, steps = CONFIGS[name], CONFIGS[name].steps_per_epoch * EPOCHS[name]
         one = tr.train_many(cfg, SEEDS, steps, devices=1)
-        four = tr.train_many(cfg, SEEDS, steps, devices=4)
+        with tempfile.TemporaryDirectory() as d:
+            def save_first(out, d=d):
+                if out.epoch == 0:
+                    checkpoint.save(f"{d}/run", out.loop, {"epoch": out.epoch})
+
+            four = tr.train_many(cfg, SEEDS, steps, devices=4, callback=save_first)
+            loop, extra = checkpoint.load(f"{d}/run", tr.init_loop(cfg, SEEDS, devices=1))
         same(one.metrics, four.metrics, f"{name} metrics")
         same(one.final.states, four.final.states, f"{name} final states")
         same(one.final.keys, four.final.keys, f"{name} loop keys")
@@ -57,22 +64,14 @@ def main(names):
             assert len(shards) == 4 and all(s.data.shape[0] == SEEDS // 4 for s in shards)
         if name == "gara":
             assert sum(info["triggered"] for info in four.host_info) > 0, "no host step ran"
-        # Checkpoint after the first epoch of the 4-device run, resume on 2 devices.
-        with tempfile.TemporaryDirectory() as d:
-            def stop_after_first(out, d=d):
-                checkpoint.save(f"{d}/run", out.loop, {"epoch": out.epoch})
-                return True
-
-            tr.train_many(cfg, SEEDS, steps, devices=4, callback=stop_after_first)
-            loop, extra = checkpoint.load(f"{d}/run", tr.init_loop(cfg, SEEDS, devices=2))
-            assert loop.epoch == 1 and extra == {"epoch": 0}
-            assert len(jax.tree.leaves(loop.states)[0].sharding.device_set) == 2
-            rest = tr.train_many(cfg, SEEDS, steps, devices=2, init_state=loop)
+        assert loop.epoch == 1 and extra == {"epoch": 0}
+        assert len(jax.tree.leaves(loop.states)[0].sharding.device_set) == 1
+        rest = tr.train_many(cfg, SEEDS, steps, devices=1, init_state=loop)
         joined = {k: np.concatenate([one.metrics[k][:, :1], rest.metrics[k]], axis=1)
                   for k in one.metrics}
         same(one.metrics, joined, f"{name} resumed metrics")
         same(one.final.states, rest.final.states, f"{name} resumed final states")
-        print(f"{name}: identical on 1 and 4 devices, and resumed on 2", flush=True)
+        print(f"{name}: identical on 1 and 4 devices, and resumed on 1 from 4", flush=True)
 
 
 if __name__ == "__main__":

@@ -25,16 +25,21 @@ def _env(**extra):
     return env
 
 
+# HIRO passes too (`python tests/_sharded_run.py hiro`), but each device compiles the epoch
+# once and HIRO's compilations would double this test's time; CI runs the two box-goal agents.
+SHARDED = ("handcrafted", "gara")
+
+
 def test_four_devices_give_the_one_device_results_bit_for_bit():
-    # Handcrafted, GARA (with its host step) and HIRO, 8 seeds on 1 and on 4 forced CPU
-    # devices, plus an orbax checkpoint of the 4-device run resumed on 2 (tests/_sharded_run.py).
+    # 8 seeds on 1 and on 4 forced CPU devices, GARA with its host step, plus an orbax
+    # checkpoint of the 4-device run resumed on 1 device (tests/_sharded_run.py).
     proc = subprocess.run(
-        [sys.executable, str(ROOT / "tests" / "_sharded_run.py")], capture_output=True,
+        [sys.executable, str(ROOT / "tests" / "_sharded_run.py"), *SHARDED], capture_output=True,
         text=True, timeout=900, cwd=ROOT,
         env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=4"))
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-4000:]
-    for name in ("handcrafted", "gara", "hiro"):
-        assert f"{name}: identical on 1 and 4 devices, and resumed on 2" in proc.stdout
+    for name in SHARDED:
+        assert f"{name}: identical on 1 and 4 devices, and resumed on 1 from 4" in proc.stdout
 
 
 def test_final_states_are_laid_out_over_the_seed_mesh():

@@ -9,9 +9,10 @@ Each epoch is one call of ``jit(vmap(train_epoch then evaluate))`` over seeds; a
 host step (GARA) then run ``host_update`` on the batched states before the next epoch.
 
 Devices: the seed axis of every agent-state leaf is sharded over a 1-D mesh of ``devices``
-(axis ``"seeds"``, ``NamedSharding(mesh, PartitionSpec("seeds"))``), and the jitted epoch runs
-with those shardings; seeds never communicate, so each device steps its own block of seeds and
-the results are bitwise those of a one-device run. The seed count must be a multiple of the
+(axis ``"seeds"``, ``NamedSharding(mesh, PartitionSpec("seeds"))``); seeds never communicate,
+so each device runs the one-device jitted epoch on its own block of seeds
+(:class:`gara_jax.sharding.SeedJit`) and the results are bitwise those of a one-device run
+(see :mod:`gara_jax.sharding` for what that takes). The seed count must be a multiple of the
 device count (a ``ValueError`` naming ``seeds`` and ``devices`` otherwise). Under
 ``jax.distributed`` the mesh spans every process's devices: each process computes its
 addressable seeds and runs the host step on them, and the per-epoch metrics are gathered.

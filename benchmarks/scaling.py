@@ -236,9 +236,11 @@ def table(rows) -> str:
             lines.append(f"| {r['algorithm']} | {r['n_seeds']} | - | {r['skipped']} | | | "
                          f"{r.get('state_bytes_per_seed', 0) / 1e6:.1f} | | |")
             continue
+        fmt = lambda key, spec, r=r: format(r[key], spec) if key in r else "-"  # noqa: E731
         lines.append(
             f"| {r['algorithm']} | {r['n_seeds']} | {r['devices']} | "
-            f"{r['agent_steps_per_s']:,.0f} | {r['epoch_s_min']:.2f} | {r['compile_s']:.1f} | "
+            f"{r['agent_steps_per_s']:,.0f} | {fmt('epoch_s_min', '.2f')} | "
+            f"{fmt('compile_s', '.1f')} | "
             f"{r['state_bytes_per_seed'] / 1e6:.1f} | {r['peak_rss_bytes'] / 1e9:.2f} | "
             f"{r['peak_rss_bytes_per_seed'] / 1e6:.1f} |")
     return "\n".join(lines)

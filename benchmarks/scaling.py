@@ -21,9 +21,10 @@ predicted need (state bytes from ``jax.eval_shape`` x ``--memory-factor``) excee
 the machine); larger sizes of that algorithm are then skipped too.
 
 ``--device-counts 1 2 4`` also runs 8 seeds of every algorithm on 1, 2 and 4 devices (forced
-CPU devices on a CPU: ``--xla_force_host_platform_device_count``) and records the speed and
-whether the metrics are bitwise those of the 1-device run; on a CPU the forced devices share
-the same cores, so this checks correctness, not speedup.
+CPU devices on a CPU: ``--xla_force_host_platform_device_count``), every count with
+``batch_invariant=True``, and records the speed and whether the metrics are bitwise those of
+the 1-device run; on a CPU the forced devices share the same cores, so this checks
+correctness, not speedup.
 
 Usage::
 
@@ -153,7 +154,8 @@ def device_check(names, n_seeds: int, steps_per_epoch: dict, device_counts) -> l
         reference = None
         for n_dev in device_counts:
             t0 = time.perf_counter()
-            res = tr.train_many(config, n_seeds, 2 * config.steps_per_epoch, devices=n_dev)
+            res = tr.train_many(config, n_seeds, 2 * config.steps_per_epoch, devices=n_dev,
+                                batch_invariant=True)
             wall = time.perf_counter() - t0
             leaves = [np.asarray(x) for x in jax.tree.leaves(jax.device_get(res.final.states))]
             if reference is None:

@@ -12,13 +12,19 @@ would make runs irreproducible. The price is one compilation per device (the sam
 placed on each).
 
 A device's block must reproduce the same seeds computed in a larger batch, which XLA does not
-promise. Two things broke it on CPU, and are worked around here: XLA's experimental YNNPACK
-fusions (a vmapped matrix product's per-seed gradient differed at batch 1 and 8), so on CPU
-the functions are compiled with them off; and a batch of exactly one seed, whose size-1 axis
-XLA optimises away (GARA's forward-model MSE records differed in the last bit), so a block of
-one seed is run as two copies of it and the copy dropped. Batches of 2 and 8 seeds gave
-identical per-seed results in every array of every algorithm we compared
-(``tests/test_sharding.py`` checks 8 seeds on 4 devices against one device).
+promise, so that is a choice, ``batch_invariant``, made per compiled function. Two things broke it
+on CPU: XLA's YNNPACK dot fusions (on by default; a vmapped matrix product's per-seed result
+differed between batches of 2 and 8 seeds), and a batch of exactly one seed, whose size-1 axis
+XLA optimises away (GARA's forward-model MSE records differed in the last bit). With
+``batch_invariant=True`` the function is compiled on CPU with the YNNPACK fusions off
+(:data:`CPU_BATCH_INVARIANT_OPTIONS`) and a block of one seed runs as two copies of it (the copy
+dropped); batches of 2 and 8 seeds then gave identical per-seed results in every array of every
+algorithm we compared (``tests/test_sharding.py`` checks 8 seeds on 4 devices against one
+device). It costs speed on CPU (YNNPACK's dots are faster: 20-seed epochs took 1.5x as long for
+Handcrafted, 1.25x for GARA and 1.05x for the paper's HIRO on a 2-core CPU), so the training
+driver turns it on only for runs over more than one device unless asked: a one-device run is
+then bitwise the run it always was, and a run over several devices is bitwise the one-device run
+made with ``batch_invariant=True``.
 
 Under ``jax.distributed`` the mesh spans every process's devices and each process runs the
 blocks of its own (addressable) devices.
@@ -26,7 +32,9 @@ blocks of its own (addressable) devices.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+import contextlib
+import threading
+from collections.abc import Callable, Iterator, Sequence
 
 import jax
 import numpy as np
@@ -35,8 +43,37 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 #: The mesh axis the seeds are sharded over.
 SEED_AXIS = "seeds"
 
-# See the module docstring: per-seed results that do not depend on the batch size on CPU.
-CPU_COMPILER_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+#: XLA:CPU compiler options under which per-seed results do not depend on the batch size (see
+#: the module docstring): YNNPACK fusions off.
+CPU_BATCH_INVARIANT_OPTIONS = {"xla_cpu_experimental_ynn_fusion_type": ""}
+
+
+_scope = threading.local()
+
+
+@contextlib.contextmanager
+def batch_invariant_scope(on: bool) -> Iterator[None]:
+    """Within the block, :class:`SeedJit` functions made with ``batch_invariant=None`` run
+    batch-invariant (``on=True``) or not (outside any block: not). The training driver wraps
+    GARA's host step in it, so that the host step's device functions follow the run's choice.
+
+    Example:
+        >>> with batch_invariant_scope(True):
+        ...     inside = current_batch_invariance()
+        >>> inside, current_batch_invariance()
+        (True, False)
+    """
+    before = getattr(_scope, "on", False)
+    _scope.on = bool(on)
+    try:
+        yield
+    finally:
+        _scope.on = before
+
+
+def current_batch_invariance() -> bool:
+    """The innermost :func:`batch_invariant_scope`'s choice (``False`` outside any)."""
+    return getattr(_scope, "on", False)
 
 
 def resolve_devices(devices=None) -> list:
@@ -177,10 +214,13 @@ class SeedJit:
 
     ``batched`` names the positional arguments that have the seed axis first (default: all);
     the others are passed whole to every device. When the batched inputs are laid out over a
-    seed mesh (:func:`seed_sharding`) of more than one device, each of this process's devices
-    runs the one-device program on its block and the outputs (seed axis first) come back laid
-    out over the same mesh; otherwise it is a plain jitted call. Extra keyword arguments go to
-    ``jax.jit`` (e.g. ``donate_argnums``); on CPU, :data:`CPU_COMPILER_OPTIONS` are added.
+    seed mesh (:func:`seed_sharding`), each of this process's devices runs the one-device
+    program on its block and the outputs (seed axis first) come back laid out over the same
+    mesh; otherwise it is a plain jitted call. ``batch_invariant=True`` makes each seed's
+    result independent of how many seeds share its block (see the module docstring: on CPU
+    the function is compiled with :data:`CPU_BATCH_INVARIANT_OPTIONS`, and a one-seed block
+    runs as two copies); ``None`` follows :func:`batch_invariant_scope`. Extra keyword
+    arguments go to ``jax.jit`` (e.g. ``donate_argnums``).
 
     Example:
         >>> import jax, jax.numpy as jnp
@@ -190,29 +230,39 @@ class SeedJit:
         [1.0, 3.0, 5.0, 7.0]
     """
 
-    def __init__(self, fn: Callable, batched: Sequence[int] | None = None, **jit_kwargs):
+    def __init__(self, fn: Callable, batched: Sequence[int] | None = None, *,
+                 batch_invariant: bool | None = None, **jit_kwargs):
         self._fn, self._batched, self._kwargs = fn, batched, jit_kwargs
-        self._jits: dict[str, Callable] = {}
+        self.batch_invariant = None if batch_invariant is None else bool(batch_invariant)
+        self._jits: dict[tuple[str, bool], Callable] = {}
         self.__wrapped__ = fn
         self.__doc__ = fn.__doc__
 
-    def jitted(self, platform: str) -> Callable:
+    def invariant(self) -> bool:
+        """Whether a call now runs batch-invariant (``batch_invariant``, or the scope's)."""
+        return current_batch_invariance() if self.batch_invariant is None else self.batch_invariant
+
+    def jitted(self, platform: str, invariant: bool | None = None) -> Callable:
         """The ``jax.jit`` of ``fn`` used on ``platform`` (e.g. to lower and time it)."""
-        if platform not in self._jits:
-            options = CPU_COMPILER_OPTIONS if platform == "cpu" else None
-            self._jits[platform] = jax.jit(self._fn, compiler_options=options, **self._kwargs)
-        return self._jits[platform]
+        invariant = self.invariant() if invariant is None else invariant
+        if (platform, invariant) not in self._jits:
+            options = CPU_BATCH_INVARIANT_OPTIONS if invariant and platform == "cpu" else None
+            self._jits[platform, invariant] = jax.jit(self._fn, compiler_options=options,
+                                                      **self._kwargs)
+        return self._jits[platform, invariant]
 
     def __call__(self, *args):
         batched = range(len(args)) if self._batched is None else self._batched
         mesh = _mesh_of([args[i] for i in batched])
         platform = (jax.devices()[0] if mesh is None else mesh.devices.flat[0]).platform
-        run = self.jitted(platform)
+        invariant = self.invariant()
+        run = self.jitted(platform, invariant)
         if mesh is None:
             return run(*args)
         n_seeds = int(jax.tree.leaves(args[batched[0]])[0].shape[0])
         devices = _local_devices(mesh)
-        single = n_seeds == mesh.devices.size  # one seed per device: run it twice, see above
+        # One seed per device: run it twice (see the module docstring).
+        single = invariant and n_seeds == mesh.devices.size
         per_arg = {}
         for i in batched:
             leaves, treedef = jax.tree.flatten(args[i])

@@ -11,8 +11,9 @@ host step (GARA) then run ``host_update`` on the batched states before the next 
 Devices: the seed axis of every agent-state leaf is sharded over a 1-D mesh of ``devices``
 (axis ``"seeds"``, ``NamedSharding(mesh, PartitionSpec("seeds"))``); seeds never communicate,
 so each device runs the one-device jitted epoch on its own block of seeds
-(:class:`gara_jax.sharding.SeedJit`) and the results are bitwise those of a one-device run
-(see :mod:`gara_jax.sharding` for what that takes). The seed count must be a multiple of the
+(:class:`gara_jax.sharding.SeedJit`); with ``batch_invariant`` (the default when there is more
+than one device) the results are bitwise those of a one-device run made with it (see
+:mod:`gara_jax.sharding` for what that takes and costs). The seed count must be a multiple of the
 device count (a ``ValueError`` naming ``seeds`` and ``devices`` otherwise). Under
 ``jax.distributed`` the mesh spans every process's devices: each process computes its
 addressable seeds and runs the host step on them, and the per-epoch metrics are gathered.
@@ -39,6 +40,7 @@ from gara_jax.algorithms import make_algorithm
 from gara_jax.algorithms.base import Algorithm
 from gara_jax.sharding import (
     SeedJit,
+    batch_invariant_scope,
     check_divisible,
     relayout,
     seed_mesh,
@@ -205,7 +207,7 @@ class _Compiled(NamedTuple):
     mesh: Mesh
 
 
-def _build(config, mesh: Mesh) -> _Compiled:
+def _build(config, mesh: Mesh, batch_invariant: bool) -> _Compiled:
     alg = make_algorithm(config)
 
     def init(seed_ints):
@@ -214,23 +216,39 @@ def _build(config, mesh: Mesh) -> _Compiled:
 
     # The old states are not reused after an epoch, so XLA may update them in place.
     run = SeedJit(jax.vmap(_epoch_fn(alg), in_axes=(0, 0, None)), batched=(0, 1),
-                  donate_argnums=0)
-    return _Compiled(alg, SeedJit(init), run, mesh)
+                  batch_invariant=batch_invariant, donate_argnums=0)
+    return _Compiled(alg, SeedJit(init, batch_invariant=batch_invariant), run, mesh)
 
 
 _build_cached = functools.lru_cache(maxsize=8)(_build)
 
 
-def compiled(config, devices=None) -> _Compiled:
+def resolve_batch_invariant(batch_invariant: bool | None, mesh: Mesh) -> bool:
+    """``batch_invariant`` as given, or (``None``) whether ``mesh`` has more than one device.
+
+    Example:
+        >>> resolve_batch_invariant(None, seed_mesh(1)), resolve_batch_invariant(True, seed_mesh(1))
+        (False, True)
+    """
+    if batch_invariant is None:
+        return mesh.devices.size > 1
+    if not isinstance(batch_invariant, bool | np.bool_):
+        raise ValueError(f"batch_invariant: must be None, True or False, got {batch_invariant!r}")
+    return bool(batch_invariant)
+
+
+def compiled(config, devices=None, batch_invariant: bool | None = None) -> _Compiled:
     """The algorithm and its jitted, seed-vmapped, seed-sharded functions on
-    ``seed_mesh(devices)``, cached per (hashable) config and mesh, so that repeated runs of one
-    config compile once per process."""
+    ``seed_mesh(devices)``, cached per (hashable) config, mesh and ``batch_invariant``
+    (:func:`resolve_batch_invariant`), so that repeated runs of one config compile once per
+    process."""
     mesh = seed_mesh(devices)
+    invariant = resolve_batch_invariant(batch_invariant, mesh)
     try:
         hash(config)
     except TypeError:
-        return _build(config, mesh)
-    return _build_cached(config, mesh)
+        return _build(config, mesh, invariant)
+    return _build_cached(config, mesh, invariant)
 
 
 def _global_array(values, sharding):
@@ -288,9 +306,9 @@ def place(loop: LoopState, devices=None) -> LoopState:
     return loop._replace(states=jax.tree.map(put, loop.states), keys=put(loop.keys))
 
 
-def init_loop(config, seeds, *, devices=None) -> LoopState:
+def init_loop(config, seeds, *, devices=None, batch_invariant: bool | None = None) -> LoopState:
     """Fresh per-seed agent states (epoch 0) for ``seeds`` (a count or a sequence), sharded
-    over ``seed_mesh(devices)``.
+    over ``seed_mesh(devices)`` (``batch_invariant``: as in :func:`train_many`).
 
     Example:
         >>> from gara_jax.algorithms import HandcraftedConfig
@@ -299,7 +317,7 @@ def init_loop(config, seeds, *, devices=None) -> LoopState:
         (0, (3, 5), (2, 2))
     """
     seeds = seed_list(seeds)
-    comp = compiled(config, devices)
+    comp = compiled(config, devices, batch_invariant)
     check_divisible(len(seeds), comp.mesh)
     states, loop_keys = comp.init(_global_array(np.asarray(seeds, np.int32),
                                                 seed_sharding(comp.mesh)))
@@ -359,7 +377,7 @@ def _snapshots(states) -> list | None:
 
 
 def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | None = None,
-                 devices=None) -> Iterator[EpochOutput]:
+                 devices=None, batch_invariant: bool | None = None) -> Iterator[EpochOutput]:
     """Run a multi-seed training epoch by epoch, yielding an :class:`EpochOutput` after each.
 
     The generator form is what checkpointing builds on: save ``out.loop`` after any epoch and
@@ -371,6 +389,7 @@ def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | Non
     ``devices`` (``None``: all, an int: the first ``n``, or a sequence of devices) is the mesh
     the seeds are sharded over (see the module docstring); the seed count must be a multiple
     of the device count. An ``init_state`` laid out otherwise is re-laid onto it first.
+    ``batch_invariant``: as in :func:`train_many`.
 
     Example:
         >>> from gara_jax.algorithms import HandcraftedConfig
@@ -378,11 +397,11 @@ def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | Non
         >>> [out.epoch for out in train_epochs(cfg, 2, total_steps=40)]
         [0, 1]
     """
-    alg, _, run, mesh = compiled(config, devices)
+    alg, _, run, mesh = compiled(config, devices, batch_invariant)
     n_epochs = n_epochs_for(config, total_steps)
     check_divisible(len(seed_list(seeds)), mesh)
     if init_state is None:
-        loop = init_loop(config, seeds, devices=mesh)
+        loop = init_loop(config, seeds, devices=mesh, batch_invariant=run.batch_invariant)
     else:
         if init_state.epoch > n_epochs:
             raise ValueError(f"init_state: epoch {init_state.epoch} is past the run's "
@@ -399,7 +418,8 @@ def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | Non
         snaps = [[] for _ in loop.seeds]
         if alg.host_update is not None:
             n = len(loop.seeds)
-            local, info = alg.host_update(_local_states(states, mesh, n), epoch)
+            with batch_invariant_scope(run.batch_invariant):  # its SeedJits follow the run's
+                local, info = alg.host_update(_local_states(states, mesh, n), epoch)
             states, info = _global_states(local, mesh, n), _gather_info(info)
             changed = np.asarray(info.get("changed", np.zeros(len(loop.seeds), bool)))
             if changed.any():
@@ -415,7 +435,8 @@ def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | Non
 def train_many(config, seeds, total_steps: int, *,
                progress: Callable[[int, int, dict], None] | None = None,
                callback: Callable[[EpochOutput], bool | None] | None = None,
-               init_state: LoopState | None = None, devices=None) -> TrainResult:
+               init_state: LoopState | None = None, devices=None,
+               batch_invariant: bool | None = None) -> TrainResult:
     """Train ``config``'s algorithm on several seeds at once and collect the curves.
 
     Args:
@@ -431,8 +452,13 @@ def train_many(config, seeds, total_steps: int, *,
             its states are consumed (donated to the first epoch run).
         devices: ``None`` (all devices), a count ``n`` (the first ``n``) or a sequence of
             devices to shard the seeds over; the seed count must be a multiple of the device
-            count (``ValueError`` naming ``seeds`` and ``devices`` otherwise). Results do not
-            depend on it, bit for bit.
+            count (``ValueError`` naming ``seeds`` and ``devices`` otherwise).
+        batch_invariant: compile so that each seed's result does not depend on how many seeds
+            share its device (:mod:`gara_jax.sharding`; on CPU it turns XLA's YNNPACK dots
+            off, which is slower). ``None``: only when there is more than one device. A run
+            over several devices gives, bit for bit, the results of a one-device run with
+            ``batch_invariant=True``; a one-device run with the default gives results that
+            differ from those in the last bits (and, through training, beyond).
 
     Returns:
         A :class:`TrainResult` covering the epochs run by this call.
@@ -448,16 +474,18 @@ def train_many(config, seeds, total_steps: int, *,
     seeds = seed_list(seeds)
     if init_state is not None and list(init_state.seeds) != seeds:
         raise ValueError(f"init_state: its seeds {list(init_state.seeds)} differ from {seeds}")
-    comp = compiled(config, devices)
-    alg = comp.alg
+    comp = compiled(config, devices, batch_invariant)
+    alg, invariant = comp.alg, comp.run.batch_invariant
     check_divisible(len(seeds), comp.mesh)
-    loop = init_loop(config, seeds, devices=comp.mesh) if init_state is None else init_state
+    loop = (init_loop(config, seeds, devices=comp.mesh, batch_invariant=invariant)
+            if init_state is None else init_state)
     start = _snapshots(loop.states)
     snapshots = [[] for _ in seeds] if start is None else [
         [s] if loop.epoch == 0 else [] for s in start]
     rows, host_info, first_epoch_s, host_s = [], [], None, 0.0
     episodes = None
-    for out in train_epochs(config, seeds, total_steps, init_state=loop, devices=comp.mesh):
+    for out in train_epochs(config, seeds, total_steps, init_state=loop, devices=comp.mesh,
+                            batch_invariant=invariant):
         rows.append(out.metrics)
         if out.episodes is not None:
             episodes = {name: [[] for _ in seeds] for name in EPISODE_FIELDS} if (

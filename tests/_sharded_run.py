@@ -1,5 +1,6 @@
 """Run by tests/test_sharding.py in a subprocess with 4 forced CPU devices: trains each
-algorithm's tiny config on 8 seeds over 1 and over 4 devices and checks, bit for bit, that
+algorithm's tiny config on 8 seeds over 1 device (``batch_invariant=True``) and over 4 devices
+(where that is the default) and checks, bit for bit, that
 the metrics and final states agree, that the 4-device states really lie over 4 devices, and
 that an orbax checkpoint written by the 4-device run after its first epoch, restored onto one
 device, continues exactly (each device compiles the epoch once, so compilation dominates)."""
@@ -47,7 +48,7 @@ def main(names):
     assert len(jax.devices()) == 4, jax.devices()
     for name in names:
         cfg, steps = CONFIGS[name], CONFIGS[name].steps_per_epoch * EPOCHS[name]
-        one = tr.train_many(cfg, SEEDS, steps, devices=1)
+        one = tr.train_many(cfg, SEEDS, steps, devices=1, batch_invariant=True)
         with tempfile.TemporaryDirectory() as d:
             def save_first(out, d=d):
                 if out.epoch == 0:
@@ -66,7 +67,7 @@ def main(names):
             assert sum(info["triggered"] for info in four.host_info) > 0, "no host step ran"
         assert loop.epoch == 1 and extra == {"epoch": 0}
         assert len(jax.tree.leaves(loop.states)[0].sharding.device_set) == 1
-        rest = tr.train_many(cfg, SEEDS, steps, devices=1, init_state=loop)
+        rest = tr.train_many(cfg, SEEDS, steps, devices=1, batch_invariant=True, init_state=loop)
         joined = {k: np.concatenate([one.metrics[k][:, :1], rest.metrics[k]], axis=1)
                   for k in one.metrics}
         same(one.metrics, joined, f"{name} resumed metrics")

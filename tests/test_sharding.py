@@ -76,17 +76,58 @@ def test_seeds_that_do_not_divide_over_the_devices_are_rejected():
     sharding.check_divisible(6, mesh)  # one device: anything goes
 
 
-def test_seed_jit_splits_host_arguments_and_runs_one_seed_blocks_twice():
+@pytest.mark.parametrize("batch_invariant, one_seed_batch", [(False, 1), (True, 2)])
+def test_seed_jit_splits_host_arguments_and_runs_one_seed_blocks_twice_when_invariant(
+        batch_invariant, one_seed_batch):
     calls = []
 
-    def f(x, c):
+    def f(x, c):  # seed axis first, as a seed-vmapped function's
         calls.append(x.shape)  # traced once per distinct block shape
         return 2 * x + c
 
-    fn = sharding.SeedJit(jax.vmap(f, in_axes=(0, None)), batched=(0,))
+    fn = sharding.SeedJit(f, batched=(0,), batch_invariant=batch_invariant)
+    assert fn.batch_invariant is batch_invariant
     x = jax.device_put(np.arange(3.0), sharding.seed_sharding(sharding.seed_mesh(1)))
     np.testing.assert_array_equal(np.asarray(fn(x, 1.0)), [1.0, 3.0, 5.0])
     one = jax.device_put(np.arange(1.0), sharding.seed_sharding(sharding.seed_mesh(1)))
     out = fn(one, 0.0)
     assert out.shape == (1,) and float(out[0]) == 0.0
-    assert calls == [(), ()]  # vmapped: per-seed shapes; the one-seed block ran as a batch of 2
+    assert calls == [(3,), (one_seed_batch,)]
+
+
+def test_one_device_default_is_the_plain_jitted_epoch():
+    # batch_invariant defaults to off on one device: train_many is bit for bit the plain
+    # jit(vmap(epoch)) program, so one-device results do not change with the sharding code.
+    res = tr.train_many(TINY, 2, 200, devices=1)
+    alg = tr.compiled(TINY, 1).alg
+    init_keys, loop_keys = tr._split_seed_keys(jax.vmap(jax.random.key)(np.arange(2)))
+    states = jax.jit(jax.vmap(alg.init))(init_keys)
+    run = jax.jit(jax.vmap(tr._epoch_fn(alg), in_axes=(0, 0, None)))
+    for epoch in range(2):
+        states, metrics = run(states, loop_keys, epoch)
+        for k in ("train_success", "eval_success", "env_steps"):
+            np.testing.assert_array_equal(np.asarray(metrics[k]), res.metrics[k][:, epoch])
+    for a, b in zip(jax.tree.leaves(states), jax.tree.leaves(res.final.states), strict=True):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_batch_invariant_must_be_a_bool():
+    with pytest.raises(ValueError, match="batch_invariant: must be None, True or False"):
+        tr.train_many(TINY, 2, 100, devices=1, batch_invariant="yes")
+
+
+def test_seed_jit_without_a_choice_follows_the_scope():
+    calls = []
+
+    def f(x):
+        calls.append(x.shape)
+        return x + 1
+
+    fn = sharding.SeedJit(f)
+    one = jax.device_put(np.arange(1.0), sharding.seed_sharding(sharding.seed_mesh(1)))
+    fn(one)
+    with sharding.batch_invariant_scope(True):
+        assert fn.invariant()
+        fn(one)
+    assert not fn.invariant()
+    assert calls == [(1,), (2,)]

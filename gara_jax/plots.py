@@ -63,12 +63,63 @@ def _velocity_arrow(lo: float, hi: float, eps: float = 1e-6) -> str:
     return "±"
 
 
-def draw_partition(ax, lo, hi, count: int, env_params, title: str = "") -> None:
-    """Draw ``count`` goal boxes over (x, y) with the maze's walls and exit.
+_GLYPH_X = {"+": "→", "-": "←", "±": "↔", "": ""}
+_GLYPH_Y = {"+": "↑", "-": "↓", "±": "↕", "": ""}
 
-    Boxes split on a velocity component get an arrow for its sign: → / ← for vx, ↑ / ↓ for vy
-    (↔ / ↕ when the range straddles 0 without covering [-1, 1]). Boxes whose (x, y) rectangles
-    coincide stack their labels.
+
+def partition_labels(lo, hi, count: int, n: float, char_width: float = 0.028,
+                     line_height: float = 0.05) -> list:
+    """Where :func:`draw_partition` writes the goal labels: ``[(x, y, lines, fontsize), ...]``,
+    one entry per distinct (x, y) rectangle (clipped to ``[0, n]^2``), ``(x, y)`` its top left.
+
+    Each goal's label is its index and arrows for the velocity components it is split on
+    (→ / ← for vx, ↑ / ↓ for vy, ↔ / ↕ when the range straddles 0 without covering [-1, 1]).
+    Goals whose rectangles coincide (split only on velocity) share one entry, their labels
+    wrapped into lines that fit the rectangle's width, so that no two labels are written over
+    each other; ``char_width`` and ``line_height`` are a character's size at font size 7 in
+    units of ``n`` (one panel of :func:`plot_partitions`), and a label too tall for its
+    rectangle at 7 is set at 5.
+
+    Example:
+        >>> lo = np.array([[0.0, 0.0, -1.0, -1.0], [0.0, 0.0, 0.0, -1.0], [1.0, 0.0, -1, -1]])
+        >>> hi = np.array([[1.0, 1.0, 0.0, 1.0], [1.0, 1.0, 1.0, 1.0], [2.0, 1.0, 1, 1]])
+        >>> partition_labels(lo, hi, 3, n=2.0)
+        [(0.0, 1.0, ['0← 1→'], 7), (1.0, 1.0, ['2'], 7)]
+    """
+    lo, hi = np.asarray(lo)[:count], np.asarray(hi)[:count]
+    groups: dict[tuple, list[str]] = {}
+    for g in range(count):
+        x0, y0 = max(float(lo[g, 0]), 0.0), max(float(lo[g, 1]), 0.0)
+        x1, y1 = min(float(hi[g, 0]), n), min(float(hi[g, 1]), n)
+        label = (_GLYPH_X[_velocity_arrow(lo[g, 2], hi[g, 2])]
+                 + _GLYPH_Y[_velocity_arrow(lo[g, 3], hi[g, 3])])
+        groups.setdefault((round(x0, 6), round(y0, 6), round(x1, 6), round(y1, 6)),
+                          []).append(f"{g}{label}")
+
+    def wrap(labels, width_chars):
+        lines = [labels[0]]
+        for label in labels[1:]:
+            if len(lines[-1]) + 1 + len(label) <= width_chars:
+                lines[-1] += " " + label
+            else:
+                lines.append(label)
+        return lines
+
+    out = []
+    for (x0, y0, x1, y1), labels in groups.items():
+        for fontsize in (7, 5):
+            scale = n * fontsize / 7
+            lines = wrap(labels, max(1, int(0.9 * (x1 - x0) / (char_width * scale))))
+            if len(lines) * line_height * scale <= 0.9 * (y1 - y0):
+                break
+        out.append((x0, y1, lines, fontsize))
+    return out
+
+
+def draw_partition(ax, lo, hi, count: int, env_params, title: str = "") -> None:
+    """Draw ``count`` goal boxes over (x, y) with the maze's walls and exit, each labelled
+    with its index and velocity arrows (:func:`partition_labels`: boxes whose (x, y)
+    rectangles coincide share one wrapped label).
     """
     lo = np.asarray(lo)[:count]
     hi = np.asarray(hi)[:count]
@@ -81,21 +132,14 @@ def draw_partition(ax, lo, hi, count: int, env_params, title: str = "") -> None:
     ex, ey = np.asarray(env_params.exit, dtype=np.float64)
     w = float(np.asarray(env_params.exit_half_width))
     ax.add_patch(Rectangle((ex - w, ey - w), 2 * w, 2 * w, facecolor="red", alpha=0.6, zorder=2))
-    seen: dict[tuple, int] = {}
-    glyph_x = {"+": "→", "-": "←", "±": "↔", "": ""}
-    glyph_y = {"+": "↑", "-": "↓", "±": "↕", "": ""}
     for g in range(count):
         x0, y0 = max(lo[g, 0], 0), max(lo[g, 1], 0)
         x1, y1 = min(hi[g, 0], n), min(hi[g, 1], n)
         ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, facecolor="tab:green", alpha=0.12,
                                edgecolor="darkgreen", linewidth=1.0, zorder=1))
-        label = glyph_x[_velocity_arrow(lo[g, 2], hi[g, 2])] + glyph_y[_velocity_arrow(lo[g, 3],
-                                                                                     hi[g, 3])]
-        key = tuple(np.round([x0, y0, x1, y1], 6))
-        slot = seen.get(key, 0)
-        seen[key] = slot + 1
-        ax.text(x0 + 0.05 * (x1 - x0) + 0.0, y1 - 0.12 - 0.2 * slot, f"{g}{label}", fontsize=7,
-                va="top", ha="left", zorder=4)
+    for x0, y1, lines, fontsize in partition_labels(lo, hi, count, n):
+        ax.text(x0 + 0.01 * n, y1 - 0.013 * n, "\n".join(lines), fontsize=fontsize, va="top",
+                ha="left", zorder=4, linespacing=1.1)
     ax.set_xlim(-0.05, n + 0.05)
     ax.set_ylim(-0.05, n + 0.05)
     ax.set_aspect("equal")

@@ -125,6 +125,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="seconds between checkpoints (default 60; 0: after every epoch; a "
                         "method's last epoch is always saved)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--batch-invariant", action=argparse.BooleanOptionalAction, default=None,
+                   help="compile so that each seed's results do not depend on how the seeds "
+                        "are spread over devices and processes (on CPU: XLA's YNNPACK dots "
+                        "off, slower); default: on exactly when there is more than one device")
     p.add_argument("--distributed", action="store_true",
                    help="one of several processes (jax.distributed, from JAX_COORDINATOR_ADDRESS,"
                         " JAX_NUM_PROCESSES, JAX_PROCESS_ID): seeds over every process's "
@@ -189,9 +193,14 @@ def run_config(args, methods) -> dict:
     configs = {m: dataclasses.asdict(method_config(
         m, env=args.env, steps_per_epoch=args.steps_per_epoch, eval_episodes=args.eval_episodes))
         for m in methods}
+    from gara_jax.sharding import seed_mesh
+    from gara_jax.train import resolve_batch_invariant
+
+    # Resolved (the default depends on the device count): a resume must compile alike.
+    invariant = resolve_batch_invariant(getattr(args, "batch_invariant", None), seed_mesh(None))
     return {"seeds": args.seeds, "steps": args.steps, "methods": methods,
             "steps_per_epoch": args.steps_per_epoch, "quick": args.quick, "env": args.env,
-            "configs": configs}
+            "batch_invariant": invariant, "configs": configs}
 
 
 class _Progress:
@@ -226,7 +235,8 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
                            eval_episodes=args.eval_episodes)
     n_epochs = n_epochs_for(config, args.steps)
     path, legacy = ckpt_dir / method, ckpt_dir / f"{method}.npz"  # orbax; the previous format
-    loop = init_loop(config, args.seeds)
+    invariant = getattr(args, "batch_invariant", None)
+    loop = init_loop(config, args.seeds, batch_invariant=invariant)
     record = {"metrics": {}, "episodes": {f: [[] for _ in range(args.seeds)]
                                           for f in EPISODE_FIELDS},
               "snapshots": _initial_snapshots(loop.states, args.seeds), "wall_time_s": 0.0}
@@ -239,7 +249,8 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
     t0, base_wall = time.perf_counter(), record["wall_time_s"]
     last_save = t0
     try:
-        for out in train_epochs(config, args.seeds, args.steps, init_state=loop):
+        for out in train_epochs(config, args.seeds, args.steps, init_state=loop,
+                                batch_invariant=invariant):
             for k, v in out.metrics.items():
                 record["metrics"].setdefault(k, []).append(np.asarray(v).tolist())
             if out.episodes is not None:

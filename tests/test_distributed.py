@@ -36,7 +36,9 @@ def _rows(path):
 
 
 def test_two_processes_give_the_one_process_files(tmp_path):
-    single = subprocess.run([sys.executable, *ARGS, "--out", str(tmp_path / "one")],
+    # Two processes of one device each: batch-invariant by default; the one-process run asks.
+    single = subprocess.run([sys.executable, *ARGS, "--batch-invariant", "--out",
+                             str(tmp_path / "one")],
                             capture_output=True, text=True, timeout=600, cwd=ROOT, env=_env())
     assert single.returncode == 0, single.stderr[-3000:]
     coordinator = f"127.0.0.1:{_free_port()}"
@@ -52,6 +54,8 @@ def test_two_processes_give_the_one_process_files(tmp_path):
     assert _rows(tmp_path / "two" / "metrics.csv") == _rows(tmp_path / "one" / "metrics.csv")
     one = json.loads((tmp_path / "one" / "summary.json").read_text())
     two = json.loads((tmp_path / "two" / "summary.json").read_text())
+    config = json.loads((tmp_path / "two" / "config.json").read_text())
+    assert config["batch_invariant"] is True
     for method in one:
         one[method].pop("wall_time_s"), two[method].pop("wall_time_s")
     assert one == two

@@ -55,6 +55,7 @@ def test_quick_mode_writes_every_file_well_formed(quick_run):
         assert set(s["train_success_ep300_400"]) == {"mean", "ci95", "n"}
     config = json.loads((quick_run / "config.json").read_text())
     assert config["seeds"] == 2 and config["steps"] == 2000
+    assert config["batch_invariant"] is False  # one device: XLA's defaults
     assert config["configs"]["gara"]["tau1"] == 0.9  # SPEC.md 3.6, revision 2
     assert config["configs"]["hiro_paper"]["high"]["critic_target"] == "reward_less"
     assert config["configs"]["gara_reference"]["memory"] == "windows"

@@ -70,15 +70,16 @@ _GLYPH_Y = {"+": "↑", "-": "↓", "±": "↕", "": ""}
 def partition_labels(lo, hi, count: int, n: float, char_width: float = 0.028,
                      line_height: float = 0.05) -> list:
     """Where :func:`draw_partition` writes the goal labels: ``[(x, y, lines, fontsize), ...]``,
-    one entry per distinct (x, y) rectangle (clipped to ``[0, n]^2``), ``(x, y)`` its top left.
+    one entry per distinct top left corner ``(x, y)`` of the goals' (x, y) rectangles (clipped
+    to ``[0, n]^2``).
 
     Each goal's label is its index and arrows for the velocity components it is split on
     (→ / ← for vx, ↑ / ↓ for vy, ↔ / ↕ when the range straddles 0 without covering [-1, 1]).
-    Goals whose rectangles coincide (split only on velocity) share one entry, their labels
-    wrapped into lines that fit the rectangle's width, so that no two labels are written over
-    each other; ``char_width`` and ``line_height`` are a character's size at font size 7 in
-    units of ``n`` (one panel of :func:`plot_partitions`), and a label too tall for its
-    rectangle at 7 is set at 5.
+    Goals whose rectangles share a top left corner (split only on velocity, or nested) share
+    one entry, their labels wrapped into lines that fit the narrowest of those rectangles, so
+    that no two labels are written over each other; ``char_width`` and ``line_height`` are a
+    character's size at font size 7 in units of ``n`` (one panel of :func:`plot_partitions`),
+    and a label too tall for the lowest of them at 7 is set at 5.
 
     Example:
         >>> lo = np.array([[0.0, 0.0, -1.0, -1.0], [0.0, 0.0, 0.0, -1.0], [1.0, 0.0, -1, -1]])
@@ -87,14 +88,17 @@ def partition_labels(lo, hi, count: int, n: float, char_width: float = 0.028,
         [(0.0, 1.0, ['0← 1→'], 7), (1.0, 1.0, ['2'], 7)]
     """
     lo, hi = np.asarray(lo)[:count], np.asarray(hi)[:count]
-    groups: dict[tuple, list[str]] = {}
+    groups: dict[tuple, dict] = {}  # top left corner -> labels, narrowest width, lowest height
     for g in range(count):
         x0, y0 = max(float(lo[g, 0]), 0.0), max(float(lo[g, 1]), 0.0)
         x1, y1 = min(float(hi[g, 0]), n), min(float(hi[g, 1]), n)
         label = (_GLYPH_X[_velocity_arrow(lo[g, 2], hi[g, 2])]
                  + _GLYPH_Y[_velocity_arrow(lo[g, 3], hi[g, 3])])
-        groups.setdefault((round(x0, 6), round(y0, 6), round(x1, 6), round(y1, 6)),
-                          []).append(f"{g}{label}")
+        group = groups.setdefault((round(x0, 6), round(y1, 6)),
+                                  {"labels": [], "width": x1 - x0, "height": y1 - y0})
+        group["labels"].append(f"{g}{label}")
+        group["width"] = min(group["width"], x1 - x0)
+        group["height"] = min(group["height"], y1 - y0)
 
     def wrap(labels, width_chars):
         lines = [labels[0]]
@@ -106,11 +110,11 @@ def partition_labels(lo, hi, count: int, n: float, char_width: float = 0.028,
         return lines
 
     out = []
-    for (x0, y0, x1, y1), labels in groups.items():
+    for (x0, y1), group in groups.items():
         for fontsize in (7, 5):
             scale = n * fontsize / 7
-            lines = wrap(labels, max(1, int(0.9 * (x1 - x0) / (char_width * scale))))
-            if len(lines) * line_height * scale <= 0.9 * (y1 - y0):
+            lines = wrap(group["labels"], max(1, int(0.9 * group["width"] / (char_width * scale))))
+            if len(lines) * line_height * scale <= 0.9 * group["height"]:
                 break
         out.append((x0, y1, lines, fontsize))
     return out
@@ -119,7 +123,7 @@ def partition_labels(lo, hi, count: int, n: float, char_width: float = 0.028,
 def draw_partition(ax, lo, hi, count: int, env_params, title: str = "") -> None:
     """Draw ``count`` goal boxes over (x, y) with the maze's walls and exit, each labelled
     with its index and velocity arrows (:func:`partition_labels`: boxes whose (x, y)
-    rectangles coincide share one wrapped label).
+    rectangles share a top left corner share one wrapped label).
     """
     lo = np.asarray(lo)[:count]
     hi = np.asarray(hi)[:count]

@@ -31,7 +31,15 @@ def test_goals_sharing_a_rectangle_share_one_wrapped_label():
     assert "2←↓" in lines[0] and "9→↑" in lines[-1]
 
 
-def test_draw_partition_writes_one_text_per_rectangle(tmp_path):
+def test_nested_rectangles_with_one_top_left_corner_share_a_label():
+    lo = np.array([[0.0, 1.5, -1, -1], [0.0, 2.0, -1, -1], [0.0, 0.0, -1, -1]])
+    hi = np.array([[1.0, 3.0, 1, 1], [1.0, 3.0, 0, 1], [1.0, 1.5, 1, 1]])
+    entries = plots.partition_labels(lo, hi, 3, n=3.0)
+    assert [(x, y, lines) for x, y, lines, _ in entries] == [(0.0, 3.0, ["0 1←"]),
+                                                             (0.0, 1.5, ["2"])]
+
+
+def test_draw_partition_writes_one_text_per_corner(tmp_path):
     import matplotlib.pyplot as plt
 
     lo, hi = _stacked_partition()

@@ -20,11 +20,12 @@ XLA optimises away (GARA's forward-model MSE records differed in the last bit). 
 (:data:`CPU_BATCH_INVARIANT_OPTIONS`) and a block of one seed runs as two copies of it (the copy
 dropped); batches of 2 and 8 seeds then gave identical per-seed results in every array of every
 algorithm we compared (``tests/test_sharding.py`` checks 8 seeds on 4 devices against one
-device). It costs speed on CPU (YNNPACK's dots are faster: 20-seed epochs took 1.5x as long for
-Handcrafted, 1.25x for GARA and 1.05x for the paper's HIRO on a 2-core CPU), so the training
-driver turns it on only for runs over more than one device unless asked: a one-device run is
-then bitwise the run it always was, and a run over several devices is bitwise the one-device run
-made with ``batch_invariant=True``.
+device). It costs speed on CPU (YNNPACK's dots are faster: ``benchmarks/batch_invariance_cost.py``
+measured 20-seed epochs 1.45x as long for Handcrafted, 1.34x for GARA, 1.33x for the paper's
+HIRO and 1.09x for published HIRO on a 2-core CPU), so the training driver turns it on only for
+runs over more than one device unless asked: a one-device run is then bitwise the run it always
+was, and a run over several devices is bitwise the one-device run made with
+``batch_invariant=True``.
 
 Under ``jax.distributed`` the mesh spans every process's devices and each process runs the
 blocks of its own (addressable) devices.

@@ -1,9 +1,11 @@
 """The training driver: many seeds in one jitted epoch, host-side refinement between epochs.
 
 Seeds are independent streams: seed ``s`` uses ``jax.random.key(s)``, split into an init key
-and a loop key, and epoch ``e`` uses ``fold_in(loop_key, e)``. So a seed's run does not depend
-on which other seeds share the batch, and a run can be resumed from its :class:`LoopState`
-(the per-seed agent states, the loop keys and the next epoch index) at any epoch boundary.
+and a loop key, and epoch ``e`` uses ``fold_in(loop_key, e)``. So a seed's random stream does
+not depend on which other seeds share the batch (its float results may, in the last bits, as
+XLA compiles another batch size differently, unless ``batch_invariant``: see Devices below),
+and a run can be resumed from its :class:`LoopState` (the per-seed agent states, the loop keys
+and the next epoch index) at any epoch boundary.
 
 Each epoch is one call of ``jit(vmap(train_epoch then evaluate))`` over seeds; algorithms with a
 host step (GARA) then run ``host_update`` on the batched states before the next epoch.

@@ -432,6 +432,9 @@ def run(args: argparse.Namespace) -> int:
     try:
         methods = validate(args)
         start_distributed(args)
+        from gara_jax.sharding import check_divisible, seed_mesh
+
+        check_divisible(args.seeds, seed_mesh(None))  # the seeds are sharded over every device
     except (UsageError, ValueError) as err:
         print(f"gara-jax reproduce: error: {err}", file=sys.stderr)
         return 2

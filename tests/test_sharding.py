@@ -132,3 +132,15 @@ def test_seed_jit_without_a_choice_follows_the_scope():
         fn(one)
     assert not fn.invariant()
     assert calls == [(1,), (2,)]
+
+
+def test_reproduce_refuses_seeds_that_do_not_divide_over_the_devices(tmp_path):
+    proc = subprocess.run(
+        [sys.executable, "-m", "experiments.u_maze", "--quick", "--seeds", "2", "--methods",
+         "handcrafted", "--no-progress", "--out", str(tmp_path / "out")],
+        capture_output=True, text=True, timeout=300, cwd=ROOT,
+        env=_env(XLA_FLAGS="--xla_force_host_platform_device_count=4"))
+    assert proc.returncode == 2, proc.stderr[-2000:]
+    lines = [line for line in proc.stderr.splitlines() if "gara-jax reproduce" in line]
+    assert len(lines) == 1 and "seeds/devices: 2 seeds do not divide over 4 devices" in lines[0]
+    assert not (tmp_path / "out" / "metrics.csv").exists()

@@ -442,7 +442,9 @@ def run(args: argparse.Namespace) -> int:
     run_cfg = run_config(args, methods)
     cfg_path = out / "checkpoints" / "run_config.json"
     if args.resume and cfg_path.exists():
-        if json.loads(cfg_path.read_text()) != json.loads(json.dumps(run_cfg)):
+        saved = json.loads(cfg_path.read_text())
+        saved.setdefault("batch_invariant", False)  # runs from before the option: XLA's defaults
+        if saved != json.loads(json.dumps(run_cfg)):
             print("gara-jax reproduce: error: --resume: the arguments differ from the run in "
                   f"{args.out!r} (see {cfg_path})", file=sys.stderr)
             return 2

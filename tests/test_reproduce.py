@@ -90,9 +90,12 @@ def test_resume_after_kill_between_epochs_gives_identical_metrics(quick_run, tmp
     assert sorted(got, key=key) == sorted(want, key=key)
 
 
-def test_resume_with_other_arguments_is_refused(quick_run, capsys):
-    code = u_maze.main(["--quick", "--seeds", "3", "--steps", "2000", "--no-progress",
-                        "--out", str(quick_run), "--resume"])
+@pytest.mark.parametrize("args", [
+    ["--quick", "--seeds", "3", "--steps", "2000", "--no-progress"],
+    [*QUICK, "--batch-invariant"],  # compiles differently: cannot continue a run made without
+])
+def test_resume_with_other_arguments_is_refused(quick_run, capsys, args):
+    code = u_maze.main([*args, "--out", str(quick_run), "--resume"])
     assert code == 2
     assert "differ" in capsys.readouterr().err
 

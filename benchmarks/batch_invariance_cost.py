@@ -51,7 +51,7 @@ def bench(config, n_seeds: int, epochs: int) -> dict:
     platform = jax.devices()[0].platform
     variants = {}
     for invariant in (False, True):
-        jitted = tr.compiled(config, 1, invariant).run.jitted(platform, invariant)
+        jitted = tr.compiled(config, 1, invariant).run.jitted(platform)
         states = jax.tree.map(jnp.copy, loop.states)  # the run donates its states
         t0 = time.perf_counter()
         run = jitted.lower(states, loop.keys, 0).compile()

@@ -46,6 +46,8 @@ def machine_info() -> dict:
         "x64": bool(jax.config.jax_enable_x64),
         "cpu_async_dispatch": bool(jax.config.values["jax_cpu_enable_async_dispatch"]),
         "load_average_1min_at_start": load_average(),
+        # With the persistent cache on, a "compile" time can be a read of a cached program.
+        "compile_cache": jax.config.values["jax_compilation_cache_dir"],
     }
 
 

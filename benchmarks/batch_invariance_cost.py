@@ -83,7 +83,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--epochs", type=int, default=3, help="timed epochs per variant")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     if args.seeds < 1 or args.epochs < 1:
         parser.error("--seeds and --epochs must be at least 1")
     result = {"machine": machine_info(), "seeds": args.seeds, "timed_epochs": args.epochs,

@@ -263,7 +263,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--out", type=Path,
         default=Path(__file__).resolve().parent / "results" / "bounds_throughput.json")
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     if (args.repeats < 1 or args.jobs < 1 or args.callers < 1
             or any(b < 1 for b in args.batches)):
         parser.error("--repeats, --jobs, --callers and --batches must be >= 1")

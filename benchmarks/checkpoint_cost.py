@@ -106,7 +106,11 @@ def main(argv=None):
     parser.add_argument("--dir", type=Path, default=None,
                         help="where to write (default: a temporary directory)")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
 
     from _common import machine_info
 

@@ -285,7 +285,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     # Internal: run the JAX rows only, pinned to this CPU, and print them as JSON.
     parser.add_argument("--jax-rows-on-cpu", type=int, default=None, help=argparse.SUPPRESS)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     for name in ("steps", "loop_steps", "repeats", "point_steps"):
         if getattr(args, name) < 1:
             parser.error(f"--{name.replace('_', '-')} must be >= 1")

@@ -33,7 +33,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--steps-per-epoch", type=int, default=1500)
     parser.add_argument("--out", type=Path, default=RESULTS)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     result = {"machine": machine_info(), "seeds": args.seeds,
               "steps_per_epoch": args.steps_per_epoch, "schedules": {}}
     for schedule in ("sequential", "vmap"):

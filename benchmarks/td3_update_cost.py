@@ -95,7 +95,11 @@ def main(argv=None) -> dict:
     parser.add_argument("--flop-per-cycle", type=float, default=64.0,
                         help="float32 FLOPs per cycle per core (default 64: AMD Zen 5)")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     if args.seeds < 1 or args.repeats < 1:
         parser.error("--seeds and --repeats must be >= 1")
 

@@ -178,7 +178,11 @@ def main(argv=None):
     parser.add_argument("--merge", action="store_true",
                         help="keep the rows of the existing JSON that this run does not measure")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
 
     algorithms = configs()
     if args.algorithms:

@@ -37,7 +37,8 @@ Example:
     >>> import jax, envs
     >>> env, params = envs.make("point_u_maze")
     >>> obs, state = env.reset(jax.random.key(0), params)
-    >>> obs, state, reward, terminated, truncated, info = env.step(
+    >>> step = jax.jit(env.step)   # brax's step compiles once; unjitted it runs op by op
+    >>> obs, state, reward, terminated, truncated, info = step(
     ...     jax.random.key(1), state, 1, params)
     >>> [round(float(v), 2) for v in obs]
     [0.05, 0.0, 0.08, 0.0]

@@ -313,7 +313,11 @@ def parse_args(argv=None):
     p.add_argument("--rerun", action="store_true", help="run variants already in --out again")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument("--list", action="store_true", help="list the variants and exit")
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(p)
     args = p.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     if args.seeds < 1:
         p.error("--seeds: must be >= 1")
     if args.steps < 1:

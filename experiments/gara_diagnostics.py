@@ -228,7 +228,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--goal-membership", choices=("box", "partition"), default="box",
                    help="when the low level counts as inside its target (see HandcraftedConfig)")
     p.add_argument("--runs", default=",".join(RUNS), help=f"subset of {','.join(RUNS)}")
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(p)
     args = p.parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
     args.runs = [r.strip() for r in args.runs.split(",") if r.strip()]
     if not args.runs or set(args.runs) - set(RUNS) or len(set(args.runs)) != len(args.runs):
         p.error(f"--runs: choose distinct names from {', '.join(RUNS)}, got {args.runs}")

@@ -155,6 +155,9 @@ def _apply_defaults(args: argparse.Namespace) -> argparse.Namespace:
 def parse_args(argv=None) -> argparse.Namespace:
     p = argparse.ArgumentParser(prog="gara-jax reproduce", description=DESCRIPTION)
     add_arguments(p)
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(p)
     return p.parse_args(argv)
 
 
@@ -423,7 +426,11 @@ def _atomic_png(path: Path, draw) -> None:
 
 def main(argv=None) -> int:
     """``python -m experiments.u_maze [options]``; returns the exit status."""
-    return run(parse_args(argv))
+    from gara_jax import compile_cache
+
+    args = parse_args(argv)
+    compile_cache.setup(args.no_compile_cache)
+    return run(args)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,6 +15,8 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from gara_jax import compile_cache  # light: no JAX at import
+
 
 @dataclass(frozen=True)
 class Command:
@@ -50,6 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     for command in COMMANDS.values():
         sub_parser = sub.add_parser(command.name, help=command.help, description=command.help)
         command.add_arguments(sub_parser)
+        compile_cache.add_argument(sub_parser)
         sub_parser.set_defaults(_run=command.run)
     return parser
 
@@ -57,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gara-jax`` console script; returns the exit status."""
     args = build_parser().parse_args(argv)
+    try:
+        compile_cache.setup(args.no_compile_cache)
+    except ValueError as err:
+        print(f"gara-jax: error: {err}", file=sys.stderr)
+        return 2
     return int(args._run(args) or 0)
 
 

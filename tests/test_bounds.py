@@ -1,6 +1,5 @@
 """IBP and CROWN: golden parity with the reference verifier, soundness, batching, input checks."""
 
-import os
 from pathlib import Path
 
 import jax
@@ -13,10 +12,8 @@ from hypothesis import strategies as st
 from gara_jax.networks import mlp_layers
 from gara_jax.reach import crown, ibp, layers_from_flax
 
-GOLDEN_DIR = Path(os.environ.get(
-    "GARA_GOLDEN_DIR", Path(__file__).resolve().parents[1].parent / "shared" / "golden"))
-GOLDEN = GOLDEN_DIR / "bounds_reference.npz"
-needs_golden = pytest.mark.skipif(not GOLDEN.exists(), reason=f"no golden file at {GOLDEN}")
+# The golden bounds ship with the tests (tests/data/README.md says where they came from).
+GOLDEN = Path(__file__).resolve().parent / "data" / "bounds_reference.npz"
 
 
 def _golden_nets(dtype):
@@ -29,7 +26,6 @@ def _golden_nets(dtype):
             m: (data[f"net{i}_{m}_lo"], data[f"net{i}_{m}_hi"]) for m in ("ibp", "crown")}
 
 
-@needs_golden
 def test_golden_bounds_float64():
     with jax.enable_x64(True):
         for i, layers, lo, hi, ref in _golden_nets(np.float64):
@@ -42,7 +38,6 @@ def test_golden_bounds_float64():
                                            err_msg=f"net{i} {name} hi")
 
 
-@needs_golden
 def test_golden_bounds_float32():
     for i, layers, lo, hi, ref in _golden_nets(np.float32):
         for name, fn in (("ibp", ibp), ("crown", crown)):
@@ -55,7 +50,6 @@ def test_golden_bounds_float32():
                                        err_msg=f"net{i} {name} hi")
 
 
-@needs_golden
 def test_golden_convention_is_pure_crown():
     """The reference does not intersect CROWN with IBP: its CROWN bounds are sometimes looser.
     Reproducing them to 1e-6 (above) while this holds pins down that convention."""

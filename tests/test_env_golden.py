@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import jax
@@ -15,17 +14,13 @@ from envs.maze import random_rollout, state_from_vector
 from envs.reference import NumpyReferenceMaze, ReferenceMaze
 
 
-def golden_dir() -> Path:
-    override = os.environ.get("GARA_GOLDEN_DIR")
-    if override:
-        return Path(override)
-    return Path(__file__).resolve().parents[1].parent / "shared" / "golden"
+# The golden trajectories ship with the tests (tests/data/README.md says where they came from).
+GOLDEN = Path(__file__).resolve().parent / "data" / "u_maze_reference_trajectories.npz"
 
 
 @pytest.fixture(scope="module")
 def golden():
-    path = golden_dir() / "u_maze_reference_trajectories.npz"
-    assert path.exists(), f"golden data missing at {path} (set GARA_GOLDEN_DIR)"
+    path = GOLDEN
     with np.load(path) as data:
         return {k: data[k] for k in data.files}
 

@@ -34,7 +34,9 @@ Usage::
     python benchmarks/scaling.py --devices all --seeds 1 20 128 512 1024 4096 \\
         --steps-per-epoch 3000 --device-counts 1 2 4 8 --max-memory-gb 70
 
-Prints a markdown table and writes ``benchmarks/results/scaling.json``.
+Prints a markdown table and writes ``benchmarks/results/scaling.json``. ``--dry-run`` checks
+the arguments, prints the sizes it would run and those the memory rule would skip (state bytes
+from shapes only) and exits without running or writing anything.
 """
 
 from __future__ import annotations
@@ -248,6 +250,28 @@ def table(rows) -> str:
     return "\n".join(lines)
 
 
+def dry_run(args, steps: dict, limit: float) -> dict:
+    """``--dry-run``: the sizes :func:`main` would run and skip, from shapes only."""
+    plan = {"run": [], "skipped": [], "device_check": None, "out": str(args.out)}
+    for name in args.algorithms:
+        per_seed = predicted_state_bytes(name, steps[name], 1)
+        for n in sorted(args.seeds):
+            need = per_seed * n * args.memory_factor
+            (plan["skipped"] if need > limit or any(
+                s[0] == name for s in plan["skipped"]) else plan["run"]).append((name, n))
+    if args.device_counts is not None:
+        plan["device_check"] = {"n_seeds": 8, "device_counts": args.device_counts or [1, 2, 4]}
+    print(f"scaling --dry-run (nothing run or written): memory limit {limit / 1e9:.1f} GB, "
+          f"--devices {args.devices}, steps per epoch {steps}, {args.epochs} timed epoch(s)")
+    print("  would run: " + ", ".join(f"{a} {n}" for a, n in plan["run"]))
+    print("  would skip (memory): " + (", ".join(f"{a} {n}" for a, n in plan["skipped"])
+                                        or "none"))
+    if plan["device_check"]:
+        print(f"  device check: 8 seeds on {plan['device_check']['device_counts']} devices")
+    print(f"  would write {args.out}")
+    return plan
+
+
 def main(argv=None):
     argv = sys.argv[1:] if argv is None else argv
     if argv[:1] == ["--worker"]:
@@ -272,11 +296,18 @@ def main(argv=None):
     parser.add_argument("--merge", action="store_true",
                         help="keep the rows of the existing JSON that this run does not measure")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print the sizes that would run or be skipped and exit")
     from gara_jax import compile_cache
 
     compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
     compile_cache.setup(args.no_compile_cache)
+    if args.devices != "all" and not (args.devices.isdigit() and int(args.devices) >= 1):
+        parser.error(f"--devices: a count >= 1 or 'all', got {args.devices!r}")
+    if any(n < 1 for n in [*args.seeds, *(args.device_counts or [])]) or args.epochs < 1 or (
+            args.steps_per_epoch is not None and args.steps_per_epoch < 1):
+        parser.error("--seeds, --device-counts, --epochs, --steps-per-epoch: must be >= 1")
 
     from _common import load_average, machine_info
 
@@ -284,6 +315,8 @@ def main(argv=None):
     available = available_memory_bytes()
     limit = (args.max_memory_gb * 1e9 if args.max_memory_gb is not None
              else (available or 16e9) / 2)
+    if args.dry_run:
+        return dry_run(args, steps, limit)
     result = {"machine": machine_info(), "memory_available_bytes_at_start": available,
               "memory_limit_bytes": limit, "memory_factor": args.memory_factor,
               "steps_per_epoch": steps, "rows": [], "device_check": None}

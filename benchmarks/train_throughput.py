@@ -17,8 +17,11 @@ Usage::
     python benchmarks/train_throughput.py                  # 1, 20, 128 seeds
     python benchmarks/train_throughput.py --seeds 20 --algorithms handcrafted
     python benchmarks/train_throughput.py --reproduction
+    python benchmarks/train_throughput.py --seeds 20 --dry-run   # the plan only
 
-Prints a markdown table and writes ``benchmarks/results/train_throughput.json``.
+Prints a markdown table and writes ``benchmarks/results/train_throughput.json``. ``--dry-run``
+checks the arguments, builds the configs, prints what would be measured and exits without
+measuring or writing.
 """
 
 from __future__ import annotations
@@ -178,11 +181,15 @@ def main(argv=None):
     parser.add_argument("--merge", action="store_true",
                         help="keep the rows of the existing JSON that this run does not measure")
     parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--dry-run", action="store_true",
+                        help="print what would be measured and exit (nothing run or written)")
     from gara_jax import compile_cache
 
     compile_cache.add_argument(parser)
     args = parser.parse_args(argv)
     compile_cache.setup(args.no_compile_cache)
+    if any(n < 1 for n in args.seeds) or args.epochs < 1:
+        parser.error("--seeds and --epochs: must be >= 1")
 
     algorithms = configs()
     if args.algorithms:
@@ -190,6 +197,18 @@ def main(argv=None):
         if unknown:
             parser.error(f"unknown or unavailable algorithms: {sorted(unknown)}")
         algorithms = {k: v for k, v in algorithms.items() if k in args.algorithms}
+    if args.dry_run:
+        plan = {"algorithms": list(algorithms), "seeds": sorted(args.seeds),
+                "timed_epochs": args.epochs,
+                "steps_per_epoch": {k: v.steps_per_epoch for k, v in algorithms.items()},
+                "reproduction": args.reproduction, "out": str(args.out)}
+        print("train_throughput --dry-run (nothing measured or written): "
+              f"{', '.join(plan['algorithms'])} x seeds {plan['seeds']}, one compiling and one "
+              f"warm-up epoch, then {args.epochs} timed epoch(s) of "
+              f"{', '.join(f'{k} {v:,}' for k, v in plan['steps_per_epoch'].items())} steps"
+              f"{'; then the 20-seed x 120,000-step reproduction' if args.reproduction else ''}"
+              f"; would write {args.out}")
+        return plan
     load_start = os.getloadavg()
     rows, skipped = [], []
     for name, config in algorithms.items():

@@ -36,8 +36,14 @@ written only when every method has finished, each atomically.
 ``--env point_u_maze`` runs the same study on the brax-simulated U-maze (envs/point_maze.py)
 and writes the same files to ``results/point_u_maze`` by default.
 
+``--dry-run`` parses and checks every argument as a run would (methods, environment, seeds
+over the devices, the output directory, a ``--resume``'s arguments against the saved run),
+builds every method's config, prints the plan (methods, seeds, steps, epochs, output directory
+and the files a run would write) and exits with status 0, training and writing nothing; a bad
+argument exits with status 2, as it would for a run.
+
 Usage: ``gara-jax reproduce [--env u_maze] [--seeds 20] [--steps 120000] [--methods gara,hiro]
-[--out DIR] [--quick] [--resume]`` (or ``python -m experiments.u_maze ...``).
+[--out DIR] [--quick] [--resume] [--dry-run]`` (or ``python -m experiments.u_maze ...``).
 """
 
 from __future__ import annotations
@@ -119,6 +125,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         f"{QUICK['steps_per_epoch']}-step epochs (explicit --seeds/--steps win)")
     p.add_argument("--resume", action="store_true",
                    help="continue the run in --out from its last completed epoch")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check the arguments, print the plan (methods, seeds, steps, output "
+                        "files) and exit without training or writing anything")
     p.add_argument("--steps-per-epoch", type=int, default=None,
                    help="environment steps between evaluations / refinements (default 3000)")
     p.add_argument("--checkpoint-every", type=float, default=None, metavar="SECONDS",
@@ -161,8 +170,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def validate(args) -> list[str]:
-    """Check arguments before any work; returns the method list. Raises :class:`UsageError`."""
+def validate(args, *, write: bool = True) -> list[str]:
+    """Check arguments before any work; returns the method list. Raises :class:`UsageError`.
+
+    ``write=False`` (``--dry-run``) checks that ``--out`` could be created and written without
+    creating anything."""
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if methods == ["all"]:
         methods = list(ALL_METHODS)
@@ -180,6 +192,9 @@ def validate(args) -> list[str]:
         raise UsageError(f"--checkpoint-every: must be >= 0, got {args.checkpoint_every}")
     if args.steps_per_epoch is not None and args.steps_per_epoch < 1:
         raise UsageError(f"--steps-per-epoch: must be >= 1, got {args.steps_per_epoch}")
+    if not write:
+        _check_writable(Path(args.out))
+        return methods
     try:
         out = Path(args.out)
         (out / "checkpoints").mkdir(parents=True, exist_ok=True)
@@ -189,6 +204,83 @@ def validate(args) -> list[str]:
     except OSError as err:
         raise UsageError(f"--out: cannot write to {args.out!r} ({err.strerror or err})") from err
     return methods
+
+
+def _check_writable(out: Path) -> None:
+    """``out`` could be created (if missing) and written to, judged without writing."""
+    existing = out
+    while not existing.exists() and existing != existing.parent:
+        existing = existing.parent
+    if not existing.is_dir():
+        raise UsageError(f"--out: {str(existing)!r} is not a directory")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise UsageError(f"--out: cannot write to {str(existing)!r}")
+
+
+def output_files(methods) -> list[str]:
+    """The result files a run of ``methods`` writes to ``--out``."""
+    return ["metrics.csv", "episodes.csv", "summary.json", "success_curve.png",
+            *(f"partitions_{m}.png" for m in methods if m in GARA_METHODS), "config.json"]
+
+
+def dry_run(args, methods) -> int:
+    """``--dry-run``: build every method's config, check a ``--resume``, print the plan."""
+    from gara_jax.train import n_epochs_for, seed_list
+
+    out = Path(args.out)
+    configs = {m: method_config(m, env=args.env, steps_per_epoch=args.steps_per_epoch,
+                                eval_episodes=args.eval_episodes) for m in methods}
+    run_cfg = run_config(args, methods)
+    cfg_path = out / "checkpoints" / "run_config.json"
+    resume = "no"
+    if args.resume:
+        if not cfg_path.exists():
+            resume = f"nothing to resume in {str(out)!r}: every method starts at epoch 0"
+        elif _resume_mismatch(cfg_path, run_cfg):
+            print("gara-jax reproduce: error: --resume: the arguments differ from the run in "
+                  f"{args.out!r} (see {cfg_path})", file=sys.stderr)
+            return 2
+        else:
+            resume = f"the arguments match the run in {str(out)!r} ({cfg_path})"
+    seeds = seed_list(args.seeds)
+    first = f"{seeds[0]}..{seeds[-1]}" if len(seeds) > 1 else f"{seeds[0]}"
+    lines = ["gara-jax reproduce --dry-run: the plan (nothing is trained or written)",
+             f"  environment: {args.env}",
+             f"  seeds: {args.seeds} per method (seeds {first}), all of a method in one process",
+             f"  steps: {args.steps:,} per seed, rounded up to whole epochs",
+             f"  batch-invariant: {'on' if run_cfg['batch_invariant'] else 'off'}"]
+    if getattr(args, "distributed", False):
+        if getattr(args, "batch_invariant", None) is None:
+            lines[-1] = "  batch-invariant: on exactly when the run has more than one device"
+        lines.append("  distributed: jax.distributed would start from JAX_COORDINATOR_ADDRESS="
+                     f"{os.environ.get('JAX_COORDINATOR_ADDRESS', '(unset)')}, "
+                     f"JAX_NUM_PROCESSES={os.environ.get('JAX_NUM_PROCESSES', '(unset)')}, "
+                     f"JAX_PROCESS_ID={os.environ.get('JAX_PROCESS_ID', '(unset)')} (not "
+                     "started by a dry run: the seeds are checked against every process's "
+                     "devices when it starts)")
+    lines.append("  methods:")
+    for m, config in configs.items():
+        n_epochs = n_epochs_for(config, args.steps)
+        lines.append(f"    {m}: {type(config).__name__}, {n_epochs} epochs of "
+                     f"{config.steps_per_epoch:,} steps ({n_epochs * config.steps_per_epoch:,} "
+                     f"steps per seed), {config.eval_episodes} greedy evaluation episodes "
+                     "per seed after each epoch")
+    every = ("after every epoch" if args.checkpoint_every == 0
+             else f"every {args.checkpoint_every:g} s")
+    lines += [f"  output: {out}/ ({'exists' if out.exists() else 'would be created'})",
+              f"    result files: {', '.join(output_files(methods))}",
+              f"    checkpoints: {out}/checkpoints/METHOD/, {every} and after a method's last "
+              "epoch",
+              f"  resume: {resume}"]
+    print("\n".join(lines))
+    return 0
+
+
+def _resume_mismatch(cfg_path: Path, run_cfg: dict) -> bool:
+    """Whether the run saved in ``cfg_path`` was made with other arguments than ``run_cfg``."""
+    saved = json.loads(cfg_path.read_text())
+    saved.setdefault("batch_invariant", False)  # runs from before the option: XLA's defaults
+    return saved != json.loads(json.dumps(run_cfg))
 
 
 def run_config(args, methods) -> dict:
@@ -436,22 +528,25 @@ def main(argv=None) -> int:
 def run(args: argparse.Namespace) -> int:
     """Run the study for parsed arguments (see :func:`add_arguments`); returns the exit status."""
     args = _apply_defaults(args)
+    dry = getattr(args, "dry_run", False)
     try:
-        methods = validate(args)
-        start_distributed(args)
-        from gara_jax.sharding import check_divisible, seed_mesh
+        methods = validate(args, write=not dry)
+        if not dry:
+            start_distributed(args)
+        if not (dry and getattr(args, "distributed", False)):
+            from gara_jax.sharding import check_divisible, seed_mesh
 
-        check_divisible(args.seeds, seed_mesh(None))  # the seeds are sharded over every device
+            check_divisible(args.seeds, seed_mesh(None))  # the seeds are sharded over every device
     except (UsageError, ValueError) as err:
         print(f"gara-jax reproduce: error: {err}", file=sys.stderr)
         return 2
+    if dry:
+        return dry_run(args, methods)
     out = Path(args.out)
     run_cfg = run_config(args, methods)
     cfg_path = out / "checkpoints" / "run_config.json"
     if args.resume and cfg_path.exists():
-        saved = json.loads(cfg_path.read_text())
-        saved.setdefault("batch_invariant", False)  # runs from before the option: XLA's defaults
-        if saved != json.loads(json.dumps(run_cfg)):
+        if _resume_mismatch(cfg_path, run_cfg):
             print("gara-jax reproduce: error: --resume: the arguments differ from the run in "
                   f"{args.out!r} (see {cfg_path})", file=sys.stderr)
             return 2

@@ -237,9 +237,7 @@ def dry_run(args, methods) -> int:
         if not cfg_path.exists():
             resume = f"nothing to resume in {str(out)!r}: every method starts at epoch 0"
         elif _resume_mismatch(cfg_path, run_cfg):
-            print("gara-jax reproduce: error: --resume: the arguments differ from the run in "
-                  f"{args.out!r} (see {cfg_path})", file=sys.stderr)
-            return 2
+            return _resume_refused(args, cfg_path)
         else:
             resume = f"the arguments match the run in {str(out)!r} ({cfg_path})"
     seeds = seed_list(args.seeds)
@@ -281,6 +279,12 @@ def _resume_mismatch(cfg_path: Path, run_cfg: dict) -> bool:
     saved = json.loads(cfg_path.read_text())
     saved.setdefault("batch_invariant", False)  # runs from before the option: XLA's defaults
     return saved != json.loads(json.dumps(run_cfg))
+
+
+def _resume_refused(args, cfg_path: Path) -> int:
+    print("gara-jax reproduce: error: --resume: the arguments differ from the run in "
+          f"{args.out!r} (see {cfg_path})", file=sys.stderr)
+    return 2
 
 
 def run_config(args, methods) -> dict:
@@ -547,9 +551,7 @@ def run(args: argparse.Namespace) -> int:
     cfg_path = out / "checkpoints" / "run_config.json"
     if args.resume and cfg_path.exists():
         if _resume_mismatch(cfg_path, run_cfg):
-            print("gara-jax reproduce: error: --resume: the arguments differ from the run in "
-                  f"{args.out!r} (see {cfg_path})", file=sys.stderr)
-            return 2
+            return _resume_refused(args, cfg_path)
     from gara_jax.results import write_json
 
     if _is_primary(args):

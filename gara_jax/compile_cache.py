@@ -1,11 +1,11 @@
 """JAX's persistent compilation cache for gara-jax's commands, benchmarks and test sessions.
 
-Every ``gara-jax`` run compiles the same epoch programs again (a 20-seed GARA epoch takes 4-8 s
-to compile on a 2-core CPU, a HIRO epoch 10-30 s). With the cache on, a program compiled once
-is read back from disk by every later process that compiles the same program (same shapes,
-same config, same jax/jaxlib, same XLA flags: JAX's cache key covers all of them), so a
-second run starts training at once. Loading a cached program gives bitwise the results of
-compiling it.
+Every ``gara-jax`` run compiles the same epoch programs again (seconds per program on a 2-core
+CPU: the compile column of ``benchmarks/train_throughput.py``). With the cache on, a program
+compiled once is read back from disk by every later process that compiles the same program
+(same shapes, same config, same jax/jaxlib, same XLA flags: JAX's cache key covers all of
+them). A program read from the cache computes what the compiled one does
+(``tests/test_compile_cache.py`` checks it on one program).
 
 Where it lives, in order:
 
@@ -72,7 +72,7 @@ def resolve(disable: bool = False) -> Path | None:
     return path
 
 
-def enable(path: str | os.PathLike | None = None, *, disable: bool = False,
+def enable(path: str | os.PathLike | None = None, *,
            min_compile_time_s: float = MIN_COMPILE_TIME_S) -> Path | None:
     """Turn JAX's persistent compilation cache on; returns its folder (``None``: left off).
 
@@ -81,11 +81,8 @@ def enable(path: str | os.PathLike | None = None, *, disable: bool = False,
 
     Args:
         path: the folder; ``None`` takes :func:`resolve`'s answer.
-        disable: leave the cache off (for ``--no-compile-cache``).
         min_compile_time_s: programs that compile faster are not written.
     """
-    if disable:
-        return None
     folder = Path(path).expanduser() if path is not None else resolve()
     if folder is None:
         return None

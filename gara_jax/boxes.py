@@ -85,16 +85,30 @@ def intersect(lo1, hi1, lo2, hi2):
     return jnp.maximum(lo1, lo2), jnp.minimum(hi1, hi2)
 
 
-def coverage(r_lo, r_hi, t_lo, t_hi):
+COVERAGE_RULES = ("final", "results")
+
+
+def coverage(r_lo, r_hi, t_lo, t_hi, rule: str = "final"):
     """Coverage ratios ``(c1, c2)`` of a reached box ``R`` and a target box ``T``.
 
     ``c1 = vol(R ∩ T) / vol(R)`` and ``c2 = vol(R ∩ T) / vol(T)``, both volumes taken over the
-    dimensions where ``R`` has non-zero width (SPEC.md, section 3). Dimensions where ``R`` is
-    degenerate do not enter the volumes, but ``R ∩ T`` must be non-empty there: a point
-    coordinate outside ``T``'s range makes both ratios 0 (otherwise a degenerate ``R`` lying
-    outside ``T`` would count as covering it). ``c2`` is 0 when ``T`` has zero width in a
-    dimension where ``R`` has not (then ``vol(R ∩ T)`` is 0 too). If ``R`` is a single point,
-    both ratios are 1 when it lies in ``T`` and 0 otherwise.
+    dimensions where ``R`` has non-zero width (SPEC.md, section 3.6). ``rule`` says what a
+    dimension where ``R`` and ``T`` do not intersect does:
+
+    - ``"final"`` (the authors' final maze version, SPEC.md section 3.6): it makes both ratios
+      0. Dimensions where ``R`` is degenerate do not enter the volumes, but ``R ∩ T`` must be
+      non-empty there: a point coordinate outside ``T``'s range makes both ratios 0 (otherwise
+      a degenerate ``R`` lying outside ``T`` would count as covering it).
+    - ``"results"`` (the version that made the authors' result files, SPEC.md section 3.9.2):
+      it is *skipped*, left out of all three volumes. So a predicted box entirely left of
+      ``x = 1`` but inside ``T`` in every other dimension has ``c1 = 1`` towards
+      ``T = [1, 3] x ...``. Closed intervals that touch intersect (in a point, width 0), so
+      they are not skipped. With every dimension skipped the volumes are empty products and
+      both ratios are 1 (our reading; SPEC.md does not say).
+
+    ``c2`` is 0 when ``T`` has zero width in a dimension that enters the volumes where ``R``
+    has not (then ``vol(R ∩ T)`` is 0 too). If ``R`` is a single point, both ratios are 1
+    when it lies in ``T`` and, under ``"final"``, 0 otherwise.
 
     Example:
         >>> import jax.numpy as jnp
@@ -102,18 +116,31 @@ def coverage(r_lo, r_hi, t_lo, t_hi):
         ...                   jnp.array([1.0, 0.0]), jnp.array([5.0, 9.0]))
         >>> float(c1), float(c2)
         (0.5, 0.25)
+        >>> r_lo, r_hi = jnp.array([0.0, 1.0]), jnp.array([0.5, 2.0])  # left of x = 1
+        >>> t_lo, t_hi = jnp.array([1.0, 0.0]), jnp.array([3.0, 3.0])
+        >>> [round(float(c), 3) for c in coverage(r_lo, r_hi, t_lo, t_hi)]
+        [0.0, 0.0]
+        >>> [round(float(c), 3) for c in coverage(r_lo, r_hi, t_lo, t_hi, rule="results")]
+        [1.0, 0.333]
     """
+    if rule not in COVERAGE_RULES:
+        raise ValueError(f"rule: must be one of {COVERAGE_RULES}, got {rule!r}")
     r_w = r_hi - r_lo
     wide = r_w > 0
-    i_w = jnp.maximum(jnp.minimum(r_hi, t_hi) - jnp.maximum(r_lo, t_lo), 0)
+    i_lo, i_hi = jnp.maximum(r_lo, t_lo), jnp.minimum(r_hi, t_hi)
+    i_w = jnp.maximum(i_hi - i_lo, 0)
     t_w = t_hi - t_lo
     one = jnp.ones_like(r_w)
+    if rule == "results":
+        # A dimension where R and T do not intersect is left out of all three volumes.
+        wide = wide & (i_lo <= i_hi)
     inter = jnp.prod(jnp.where(wide, i_w, one), axis=-1)
     vol_r = jnp.prod(jnp.where(wide, r_w, one), axis=-1)
     vol_t = jnp.prod(jnp.where(wide, t_w, one), axis=-1)
-    # Degenerate coordinates of R must lie inside T, else R ∩ T is empty.
-    hits = jnp.all(wide | ((t_lo <= r_lo) & (r_lo <= t_hi)), axis=-1)
-    inter = jnp.where(hits, inter, 0)
+    if rule == "final":
+        # Degenerate coordinates of R must lie inside T, else R ∩ T is empty.
+        hits = jnp.all(wide | ((t_lo <= r_lo) & (r_lo <= t_hi)), axis=-1)
+        inter = jnp.where(hits, inter, 0)
     c1 = inter / vol_r
     c2 = jnp.where(vol_t > 0, inter / jnp.where(vol_t > 0, vol_t, 1), 0)
     return c1, c2

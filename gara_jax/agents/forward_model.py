@@ -40,6 +40,9 @@ from flax import struct
 
 from gara_jax.networks import MLP
 
+#: How the shared forward model samples a pair's rows (``ForwardModelConfig.shared_sample``).
+SHARED_SAMPLES = ("with_replacement", "without_replacement")
+
 
 @dataclasses.dataclass(frozen=True)
 class ForwardModelConfig:
@@ -58,6 +61,12 @@ class ForwardModelConfig:
             rows, before the update's MSE record. 1 in the reference, so that its model has
             taken about one step per episode in which the pair was chosen when it is first
             analysed; more steps analyse a model that has actually fitted the pair's data.
+        shared_sample: how one update of the shared model draws its ``batch_size`` rows (and
+            the rows of its MSE record) from a pair's rows. ``"with_replacement"``: uniformly
+            with replacement (this project's first implementation). ``"without_replacement"``:
+            a uniformly random subset of ``min(batch_size, rows)`` distinct rows, so a pair
+            with fewer rows than that trains on all of them once: the reference's "random
+            sample of at most 32" (SPEC.md section 3.5).
     """
 
     hidden: tuple[int, ...] = (8, 8)
@@ -67,6 +76,7 @@ class ForwardModelConfig:
     min_epochs: int = 2
     max_epochs: int = 100
     shared_steps: int = 1
+    shared_sample: str = "with_replacement"
 
     def __post_init__(self):
         if not self.hidden or any(int(h) <= 0 for h in self.hidden):
@@ -86,6 +96,9 @@ class ForwardModelConfig:
         if (isinstance(self.shared_steps, bool) or int(self.shared_steps) != self.shared_steps
                 or self.shared_steps < 1):
             raise ValueError(f"shared_steps: must be an integer >= 1, got {self.shared_steps}")
+        if self.shared_sample not in SHARED_SAMPLES:
+            raise ValueError(
+                f"shared_sample: must be one of {SHARED_SAMPLES}, got {self.shared_sample!r}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -358,6 +371,10 @@ def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardMod
         """The reference's incremental training of one shared model (SPEC.md section 3.5)."""
 
         def draw(key, start, length):
+            if config.shared_sample == "without_replacement":
+                offset, ok = distinct_sample(key, length, batch)
+                idx = rows[jnp.clip(start + offset, 0, rows.shape[0] - 1)]
+                return idx, ok
             # ``batch`` rows of the segment, uniformly with replacement (masked if empty).
             pick = start + jnp.floor(jax.random.uniform(key, (batch,)) * length).astype(jnp.int32)
             idx = rows[jnp.clip(pick, 0, rows.shape[0] - 1)]
@@ -391,6 +408,39 @@ def make_forward_model(config: ForwardModelConfig, state_dim: int) -> ForwardMod
 
     return ForwardModel(init=init, apply=apply, fit=fit, init_optimizer=optimizer.init,
                         shared_updates=shared_updates)
+
+
+def distinct_sample(key, n, size: int):
+    """``min(size, n)`` distinct indices drawn uniformly from ``[0, n)`` (``n`` may be traced).
+
+    Returns ``(idx [size] int32, ok [size] bool)``: the first ``min(size, n)`` slots hold the
+    sample (``ok``), the rest are 0 and masked. With ``n <= size`` the sample is every index;
+    otherwise Floyd's algorithm (a uniformly random subset, in no particular order).
+
+    Example:
+        >>> import jax
+        >>> idx, ok = distinct_sample(jax.random.key(0), 100, 8)
+        >>> len(set(idx.tolist())), bool(ok.all()), bool((idx < 100).all())
+        (8, True, True)
+        >>> idx, ok = distinct_sample(jax.random.key(0), 3, 8)
+        >>> sorted(idx[ok].tolist()), int(ok.sum())
+        ([0, 1, 2], 3)
+    """
+    n = jnp.asarray(n, jnp.int32)
+    u = jax.random.uniform(key, (size,))
+
+    def floyd(i, chosen):
+        j = n - size + i
+        t = jnp.minimum(jnp.floor(u[i] * (j + 1).astype(jnp.float32)).astype(jnp.int32), j)
+        taken = jnp.any((chosen == t) & (jnp.arange(size) < i))
+        return chosen.at[i].set(jnp.where(taken, j, t))
+
+    chosen = jax.lax.fori_loop(0, size, floyd, jnp.zeros((size,), jnp.int32))
+    every = jnp.arange(size, dtype=jnp.int32)
+    small = n <= size
+    ok = every < jnp.minimum(n, size)
+    idx = jnp.where(small, jnp.where(ok, every, 0), chosen)
+    return idx.astype(jnp.int32), ok
 
 
 def pad_jobs(datasets, batch_size: int, min_rows: int = 256, max_rows: int | None = None):

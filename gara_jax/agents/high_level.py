@@ -47,13 +47,15 @@ steps, so the lag is small. :func:`shortest_distances` runs the full relaxation.
 from __future__ import annotations
 
 import dataclasses
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 from flax import struct
 
 INF = jnp.inf
+#: What the high level's temporal difference is taken against (``HighLevelConfig.q_update``).
+Q_UPDATES = ("written_entry", "authors")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -74,6 +76,14 @@ class HighLevelConfig:
             failed target's value moves towards the value of where the option really ended).
         tie_break: greedy ties between equal Q-values: ``"random"`` (uniform) or ``"lowest"``
             (lowest goal index, the reference's ``argmax``).
+        q_update: which entry the temporal difference is taken against (SPEC.md sections 3.3
+            and 3.9.3). ``"written_entry"``: the entry being written, ``delta = r + gamma (1 -
+            done) max Q[next_goal] - Q[start, written]`` (ordinary Q-learning of the written
+            entry; this project's default). ``"authors"``: the *chosen target's* entry,
+            ``delta = ... - Q[start, target]``, whatever entry ``q_target_entry`` writes
+            ``Q[start, written] += alpha delta`` into: the reference's update, in both its
+            final and its results version. The two agree when the option ended in its target
+            or with ``q_target_entry="target"``.
     """
 
     alpha: float = 0.01
@@ -84,6 +94,7 @@ class HighLevelConfig:
     planner_sweeps: int = 1
     q_target_entry: str = "reached"
     tie_break: str = "random"
+    q_update: str = "written_entry"
 
     def __post_init__(self):
         if not 0.0 < self.alpha <= 1.0:
@@ -104,6 +115,8 @@ class HighLevelConfig:
                 f"{self.q_target_entry!r}")
         if self.tie_break not in ("random", "lowest"):
             raise ValueError(f"tie_break: must be 'random' or 'lowest', got {self.tie_break!r}")
+        if self.q_update not in Q_UPDATES:
+            raise ValueError(f"q_update: must be one of {Q_UPDATES}, got {self.q_update!r}")
 
 
 @struct.dataclass
@@ -119,6 +132,10 @@ class HighState:
         dist: ``[G]`` planner hop counts to the exit goal (``inf`` where unknown).
         exit_state: ``[D]`` the last state where the exit reward was obtained.
         exit_known: whether ``exit_state`` holds such a state yet.
+        alias: ``[G]`` int32 alias group of each Q row, or ``None`` (rows independent). Rows
+            with the same group are one row, as the reference's Q rows after a split are one
+            array object (GARA's ``q_rows_after_split="aliased"``, SPEC.md section 3.9.3):
+            every update written into one of them is written into all of them.
     """
 
     q: jax.Array
@@ -128,10 +145,13 @@ class HighState:
     dist: jax.Array
     exit_state: jax.Array
     exit_known: jax.Array
+    alias: Any = None
 
 
-def init_high_state(config: HighLevelConfig, max_goals: int, state_dim: int) -> HighState:
-    """A fresh high-level learner: zero Q-table, empty planner graph.
+def init_high_state(config: HighLevelConfig, max_goals: int, state_dim: int,
+                    alias_groups: bool = False) -> HighState:
+    """A fresh high-level learner: zero Q-table, empty planner graph; with ``alias_groups``,
+    every Q row in its own alias group (see :class:`HighState`).
 
     Example:
         >>> hs = init_high_state(HighLevelConfig(), max_goals=6, state_dim=4)
@@ -146,6 +166,7 @@ def init_high_state(config: HighLevelConfig, max_goals: int, state_dim: int) -> 
         dist=jnp.full((max_goals,), INF, jnp.float32),
         exit_state=jnp.zeros((state_dim,), jnp.float32),
         exit_known=jnp.asarray(False),
+        alias=jnp.arange(max_goals, dtype=jnp.int32) if alias_groups else None,
     )
 
 
@@ -251,12 +272,15 @@ def decay_epsilon(config: HighLevelConfig, epsilon, decided) -> jax.Array:
 # ----------------------------------------------------------------------------------------------
 
 
-def q_update(q, start, target, reward, next_goal, terminated, n_goals, alpha, gamma):
-    """One tabular Q-learning update of the option ``start -> target``.
+def q_update(q, start, target, reward, next_goal, terminated, n_goals, alpha, gamma,
+             against=None):
+    """One tabular Q-learning update of the entry ``Q[start, target]``.
 
     ``Q[start, target] += alpha * (reward + gamma * (1 - terminated) * max_g Q[next_goal, g]
-    - Q[start, target])``, the max over valid goals only; ``next_goal`` is the goal holding the
-    state where the option ended.
+    - Q[start, against])``, the max over valid goals only; ``next_goal`` is the goal holding the
+    state where the option ended. ``against`` defaults to ``target`` (ordinary Q-learning);
+    the reference takes the difference against the chosen target's entry while writing into
+    the reached goal's (SPEC.md section 3.9.3, ``HighLevelConfig.q_update="authors"``).
 
     Example:
         >>> import jax.numpy as jnp
@@ -264,12 +288,15 @@ def q_update(q, start, target, reward, next_goal, terminated, n_goals, alpha, ga
         >>> q = q_update(q, 0, 2, 1.0, 2, False, 3, alpha=0.5, gamma=0.5)
         >>> float(q[0, 2])  # 0.5 * (1 + 0.5 * 4 - 0)
         1.5
+        >>> float(q_update(q, 0, 1, 1.0, 2, False, 3, 0.5, 0.5, against=2)[0, 1])  # 0.5 * (3 - 1.5)
+        0.75
     """
     valid = valid_goals(n_goals, q.shape[-1])
     bootstrap = jnp.max(jnp.where(valid, q[next_goal], -INF))
     td_target = reward + gamma * (1.0 - jnp.asarray(terminated, q.dtype)) * bootstrap
     old = q[start, target]
-    return q.at[start, target].set(old + alpha * (td_target - old))
+    base = old if against is None else q[start, against]
+    return q.at[start, target].set(old + alpha * (td_target - base))
 
 
 def clean_graph(succeeded, n_goals) -> jax.Array:
@@ -331,17 +358,23 @@ def learn_from_option(config: HighLevelConfig, hs: HighState, outcome: OptionOut
     Updates the Q-table (both variants keep it, so the table is there to inspect), the planner
     graph (edge ``start -> target`` when the target was entered, ``start != target``, and the
     pair is not marked unreachable) and the exit state (when the option terminated with a
-    positive reward).
+    positive reward). With ``hs.alias`` set, the updated row is written into every row of its
+    alias group.
     """
     column = outcome.target if config.q_target_entry == "target" else outcome.next_goal
+    against = outcome.target if config.q_update == "authors" else None
     q = q_update(hs.q, outcome.start, column, outcome.reward, outcome.next_goal,
-                 outcome.terminated, n_goals, config.alpha, config.gamma)
+                 outcome.terminated, n_goals, config.alpha, config.gamma, against)
     if config.q_target_entry == "both":
         # The same TD target (computed from the table before either write) for the target.
         also = q_update(hs.q, outcome.start, outcome.target, outcome.reward, outcome.next_goal,
                         outcome.terminated, n_goals, config.alpha, config.gamma)
         entry = (outcome.start, outcome.target)
         q = q.at[entry].set(jnp.where(outcome.target != outcome.next_goal, also[entry], q[entry]))
+    if hs.alias is not None:
+        # The rows of an alias group are one row: the start's new row is theirs too.
+        group = hs.alias == hs.alias[outcome.start]
+        q = jnp.where(group[:, None], q[outcome.start][None, :], q)
     q = jnp.where(ended, q, hs.q)
     edge = ended & outcome.reached & ~outcome.blocked & (outcome.start != outcome.target)
     succeeded = hs.succeeded.at[outcome.start, outcome.target].set(

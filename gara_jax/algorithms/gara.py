@@ -64,6 +64,19 @@ FORWARD_MODELS = ("per_job", "shared")
 Q_COLUMNS = ("copy", "reference", "zero")
 SELF_TARGETS = ("always", "exit_goal")
 PIECE_ORDERS = ("appended", "parent")
+COVERAGE_RULES = ("final", "results")
+Q_ROWS_AFTER_SPLIT = ("copied", "aliased_at_split", "aliased")
+PAIR_COUNTS = ("memory", "cumulative")
+RECORDS_AFTER_SPLIT = ("cleared", "kept")
+RELABEL_COUNTS = ("none", "move", "add")
+RELABEL_AFTER = ("split", "update")
+#: The reference versions :meth:`GaraConfig.reference` and :meth:`HandcraftedConfig.reference`
+#: offer (SPEC.md section 3: the authors' final maze version; section 3.9: the version that
+#: made their result files).
+REFERENCE_VERSIONS = ("final", "results")
+#: ``min_steps`` of the results version is not recoverable (SPEC.md section 3.9.2): the
+#: results commit's script passes 1,000, the final one 5,000. The preset takes the first.
+RESULTS_MIN_STEPS = (1000, 5000)
 
 
 #: The low-level DQN of the reference (SPEC.md section 3.2: Adam step size 0.01) and this
@@ -196,19 +209,41 @@ class HandcraftedConfig:
         _validate_common(self)
 
     @classmethod
-    def reference(cls, **overrides):
-        """The authors' final maze version of Handcrafted (SPEC.md sections 3.2-3.3, 3.7).
+    def reference(cls, version: str = "final", **overrides):
+        """The authors' Handcrafted (SPEC.md sections 3.2-3.3, 3.7), in one of their versions.
 
-        Its own intrinsic reward (1 on every step inside the closed target box, no penalty),
-        no stall penalty, the lowest-index greedy tie-break, the low-level step size 0.01
-        (``LOW_REFERENCE``), and the SPEC defaults the config already has (replay 100,000,
-        target copy every 20 steps, high-level epsilon decrement 0.0005). ``overrides``
-        replace fields, e.g. ``planning=True``.
+        ``version="final"``, the authors' final maze version:
+
+        - its own intrinsic reward, 1 on every step inside the closed target box, no penalty
+          (3.2): ``intrinsic="every_step"``, ``goal_membership="box"``,
+          ``reached_at_start=False``; no stall penalty (``stall_penalty=None``);
+        - the low-level DQN of 3.2 (``LOW_REFERENCE``: Adam 0.01, replay 100,000, target copy
+          every 20 steps, the all-actions loss);
+        - the high level of 3.3: epsilon decrement 0.0005, lowest-index greedy ties
+          (``tie_break="lowest"``), the hindsight update into the reached goal's entry with
+          the difference taken against the chosen target's (``q_update="authors"``, 3.3 and
+          3.9.3).
+
+        ``version="results"``, the version that made the authors' result files (3.9.2): the
+        same, with the high-level epsilon decrement 0.005 (3.3, 3.9.2) and a low-level replay
+        of 10,000 transitions (3.2, 3.9.2).
+
+        ``overrides`` replace fields, e.g. ``planning=True``.
+
+        Example:
+            >>> HandcraftedConfig.reference(version="results").high.epsilon_decrement
+            0.005
         """
+        if version not in REFERENCE_VERSIONS:
+            raise ValueError(f"version: must be one of {REFERENCE_VERSIONS}, got {version!r}")
+        high = dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest")
+        low = LOW_REFERENCE
+        if version == "results":
+            high = dataclasses.replace(high, epsilon_decrement=0.005, q_update="authors")
+            low = dataclasses.replace(low, buffer_size=10_000)
         fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
                       reached_at_start=False, stall_penalty=None, self_target="always",
-                      low=LOW_REFERENCE,
-                      high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
+                      low=low, high=high)
         fields.update(overrides)
         return cls(**fields)
 
@@ -314,6 +349,61 @@ class GaraConfig(HandcraftedConfig):
             ruled out for the initial partition. ``"parent"``: the pieces take the split
             goal's place in the order (a ranked :class:`~gara_jax.partition.Partition`), so
             a face keeps belonging to the region that held it.
+        coverage: the coverage rule of the reachability analysis (SPEC.md sections 3.6 and
+            3.9.2; :func:`gara_jax.boxes.coverage`). ``"final"`` (the authors' final version):
+            a dimension where the predicted box ``R`` and ``G_d`` do not intersect makes
+            ``c1 = c2 = 0``. ``"results"`` (the version that made their result files): such a
+            dimension is left out of all three volumes, so a prediction that stops short of
+            ``G_d`` in ``x`` but lies inside it in ``y, vx, vy`` counts as reaching it.
+        q_rows_after_split: the Q rows of a split's pieces (SPEC.md sections 3.6 and 3.9.3).
+            ``"copied"``: every piece's row is a copy of ``G_s``'s, and only the non-reaching
+            pieces' ``Q[piece, d]`` are set to 0 (this project's first reading of 3.6). In
+            the reference the rows are the *same array object* as ``G_s``'s "until a later
+            copy" that SPEC.md does not place, so ``Q[non-reaching piece][d] = 0`` zeroes
+            ``Q[g][d]`` for every row ``g`` of the split (``G_s``'s index, the reaching pieces,
+            the others). ``"aliased_at_split"`` models exactly that and no more: the zeroing
+            hits every piece's row, and from then on the rows are independent copies (the
+            later copy taken to come before the next update). ``"aliased"`` keeps the alias
+            for the rest of the run: the pieces join ``G_s``'s alias group
+            (:class:`~gara_jax.agents.high_level.HighState` ``alias``), every later Q update
+            written into one row of a group is written into all of them, and pieces of a
+            later split of a member join the same group (the later copy never comes). The
+            two bracket the unknown.
+        pair_counts: the experience count the trigger reads (SPEC.md sections 3.5, 3.9.3).
+            ``"memory"`` (this project's first reading): recomputed at each host step from the
+            high-level memory (the summed ``length`` of the pair's rows, goals located from the
+            stored states and target bounds), so it falls when the ring overwrites rows and a
+            pair towards a split goal starts again from 0. ``"cumulative"`` (the reference,
+            both versions): one ``[G, G]`` counter per seed keyed by goal index, +1 per window
+            stored (start goal holding ``s_{t-k}``, the option's target index) and, at each
+            decision, +1 for the pair ``(here, target)`` once the pair exists (its count is
+            above 0); never recomputed from the memory, never reset; after a split, index
+            ``s`` (the first reaching piece) keeps every count, the appended pieces start
+            from 0. Needs ``memory="windows"``. Counting stops for an option whose indices
+            predate a split (``stale``; the reference, which refines between episodes, has
+            none).
+        records_after_split: the shared forward model's MSE records after a split (SPEC.md
+            section 3.9.3). ``"cleared"``: every pair involving a piece (index ``s``
+            included) starts its records again. ``"kept"`` (the reference, keyed by goal
+            index): pairs involving index ``s``, the piece that kept it, keep their records;
+            only the appended pieces start from none.
+        relabel_counts: with ``pair_counts="cumulative"``, what the high-level memory's relabel
+            after an update does to the counts (SPEC.md section 3.9.2). Each forward-model row
+            of the memory (the windows; the decisions' count-only rows are not memory rows of
+            the reference) has an old start goal (located in the partition before the update),
+            a new one (located in the new partition) and a target index (its stored target box
+            matched in the partition before the update, whose index the piece that keeps it
+            inherits; a row whose target box was split by an earlier update matches none and is
+            skipped). ``"none"``: counts untouched. ``"move"`` (the final version: -1 then +1):
+            -1 on the old pair, +1 on the new one, so a row's count follows its start state
+            into the piece that holds it. ``"add"`` (the results version): +1 on the new pair
+            of every row, so every update inflates the counts by up to the memory's size and
+            the pairs become eligible again at once.
+        relabel_after: when the relabels run (``relabel_replay``'s low-level replay copies and
+            ``relabel_counts``). ``"split"``: after a host step that grew the seed's partition
+            (this project's first reading of 3.6). ``"update"`` (the reference, both versions,
+            SPEC.md section 3.9.3): after every analysis that changed the verdicts, a split or
+            a whole ``G_s`` found reaching (no split).
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -348,6 +438,12 @@ class GaraConfig(HandcraftedConfig):
     q_columns: str = "reference"
     piece_order: str = "appended"
     initial_split_x: float | None = None
+    coverage: str = "final"
+    q_rows_after_split: str = "copied"
+    pair_counts: str = "memory"
+    records_after_split: str = "cleared"
+    relabel_counts: str = "none"
+    relabel_after: str = "split"
 
     def __post_init__(self):
         super().__post_init__()
@@ -380,35 +476,115 @@ class GaraConfig(HandcraftedConfig):
             raise ValueError("initial_split_x: must be None or lie strictly inside the U-maze's "
                              f"x range (0, 3), got {self.initial_split_x}")
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
+        _one_of(self, "coverage", COVERAGE_RULES)
+        _one_of(self, "q_rows_after_split", Q_ROWS_AFTER_SPLIT)
+        _one_of(self, "pair_counts", PAIR_COUNTS)
+        _one_of(self, "records_after_split", RECORDS_AFTER_SPLIT)
+        _one_of(self, "relabel_counts", RELABEL_COUNTS)
+        _one_of(self, "relabel_after", RELABEL_AFTER)
+        if self.pair_counts == "cumulative" and self.memory != "windows":
+            raise ValueError("pair_counts: 'cumulative' counts the reference's sliding windows "
+                             f"and needs memory='windows', got memory={self.memory!r}")
+        if self.relabel_counts != "none" and self.pair_counts != "cumulative":
+            raise ValueError(f"relabel_counts: {self.relabel_counts!r} changes cumulative counts "
+                             "and needs pair_counts='cumulative'")
 
     @classmethod
-    def reference(cls, planning: bool = False, **overrides):
-        """The authors' final maze version of GARA (SPEC.md section 3, revision 2).
+    def reference(cls, version: str = "final", planning: bool = False, **overrides):
+        """The authors' GARA (SPEC.md section 3, revision 3), in one of their versions.
 
-        Sliding-window memory of 50,000 rows and the trigger counting windows; one shared,
-        incrementally trained forward model with the reference's stability rule;
-        ``tau1 = 0.9``, ``tau2 = 0.01``, small boxes reaching iff ``c1 >= 0.5``; the x1.5
-        epsilon boost after a split; hindsight relabelling of the low-level replay; Q rows
-        (not columns) copied to new pieces; the "previous plus one" entry reward on closed
-        boxes; lowest-index greedy ties; the SPEC's DQN (``LOW_REFERENCE``, step size 0.01) and
-        high-level defaults. Reference
-        bugs: option-end rows are not forward-model data (section 3.4), and the Q-learning
-        variant re-analyses pairs marked unreachable (section 3.5; ``planning=True`` skips
-        them, as the reference's planner does). ``overrides`` replace fields.
+        ``version="final"`` (the default), the authors' final maze version (SPEC.md 3.1-3.7):
+
+        - high-level memory: sliding windows (``memory="windows"``, 3.4), 50,000 rows
+          (``memory_capacity``, 3.4); option-end rows are not forward-model data (the
+          reference's swapped-fields bug, 3.4);
+        - trigger: ``min_steps=5000`` (3.5); pairs marked unreachable analysed again only in
+          the Q-learning variant (``skip_unreachable=planning``, 3.5 of revision 2; see the
+          list of known differences below);
+        - forward model: one shared, incrementally trained network per seed with the
+          stability rule (``forward_model="shared"``, 3.5);
+        - analysis: ``tau1=0.9``, ``tau2=0.01``, small boxes reach iff ``c1 >= 0.5``
+          (``small_box_c1``), the final coverage rule (``coverage="final"``, 3.6);
+        - after a split: Q rows copied, the first reaching piece keeping ``G_s``'s column
+          (``q_columns="reference"``, 3.6); epsilon x1.5 (``split_epsilon_boost``, 3.3);
+          hindsight relabelling of the low-level replay (``relabel_replay``, 3.6);
+        - low level: the "previous plus one" entry reward on closed boxes
+          (``entry_reward``, ``goal_membership="box"``, ``reached_at_start=False``, no stall
+          penalty, 3.2); the DQN of 3.2 (``LOW_REFERENCE``: Adam 0.01, replay 100,000,
+          target copy every 20 steps);
+        - high level: epsilon decrement 0.0005, lowest-index greedy ties (3.3).
+
+        Known differences of this preset from the final version (SPEC.md 3.9.3, 3.9.4), each
+        an option that ``version="results"`` sets: counts recomputed from the memory
+        (``pair_counts``), MSE records cleared after a split (``records_after_split``), the
+        relabel only after a split (``relabel_after``), Q rows copied, not aliased
+        (``q_rows_after_split``), the difference of the Q update taken against the written
+        entry (``high.q_update``), samples drawn with replacement
+        (``forward.shared_sample``), the Planning variant skipping unreachable pairs
+        (``skip_unreachable``); and the refinement between 3,000-step epochs instead of
+        after every episode (``steps_per_epoch``; not an option yet).
+
+        ``version="results"``, the version that made the authors' result files (SPEC.md
+        3.9), is the final one with:
+
+        - the results coverage rule: a dimension where ``R`` and ``G_d`` do not intersect is
+          left out of the volumes (``coverage="results"``, 3.9.2);
+        - high-level epsilon decrement 0.005 and no boost after a split
+          (``high.epsilon_decrement=0.005``, ``split_epsilon_boost=1.0``, 3.3, 3.9.2);
+        - memory 10,000 rows and low-level replay 10,000 (``memory_capacity``,
+          ``low.buffer_size``, 3.2, 3.4, 3.9.2);
+        - ``min_steps=1000``: SPEC.md leaves it open (1,000 in the results commit's script,
+          5,000 in the final one; ``RESULTS_MIN_STEPS``); this preset takes 1,000 without
+          knowing which made the files, and ``min_steps=5000`` gives the other;
+        - relabel count inflation: after each update, +1 on the pair count of every
+          forward-model row of the memory (``relabel_counts="add"``, 3.9.2);
+        - what both versions do (3.9.3): cumulative counts keyed by goal index
+          (``pair_counts="cumulative"``) with the MSE records kept across a split
+          (``records_after_split="kept"``); the relabels also after an analysis whose whole
+          box reaches (``relabel_after="update"``); Q rows aliased, the zeroing of
+          ``Q[non-reaching piece][d]`` hitting every piece (``q_rows_after_split=
+          "aliased_at_split"``, the only consequence SPEC.md states; ``"aliased"`` keeps
+          the alias for good); the difference of the Q update taken against the chosen
+          target (``high.q_update="authors"``); the unreachable-pair skip failing for both
+          high levels (``skip_unreachable=False``); at most 32 rows sampled without
+          replacement per forward-model update (``forward.shared_sample``, 3.5).
+          Not yet built: the per-episode cadence, Planning started from the Q-learning
+          run's final partition.
+
+        ``planning`` chooses the planner; ``overrides`` replace fields.
 
         Example:
             >>> cfg = GaraConfig.reference()
             >>> cfg.split_epsilon_boost, cfg.relabel_replay, cfg.skip_unreachable
             (1.5, True, False)
+            >>> res = GaraConfig.reference(version="results")
+            >>> res.coverage, res.memory_capacity, res.min_steps, res.split_epsilon_boost
+            ('results', 10000, 1000, 1.0)
         """
+        if version not in REFERENCE_VERSIONS:
+            raise ValueError(f"version: must be one of {REFERENCE_VERSIONS}, got {version!r}")
+        high = dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest")
+        low, forward = LOW_REFERENCE, fm.ForwardModelConfig()
         fields = dict(
             planning=planning, memory="windows", memory_capacity=50_000,
             forward_model="shared", min_steps=5000, tau1=0.9, tau2=0.01, small_box_c1=0.5,
             split_epsilon_boost=1.5, relabel_replay=True, q_columns="reference",
             skip_unreachable=planning, intrinsic="first_entry", entry_reward="previous_plus_one",
             reached_at_start=False, goal_membership="box", stall_penalty=None,
-            self_target="always", low=LOW_REFERENCE,
-            high=dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest"))
+            self_target="always", coverage="final")
+        if version == "results":
+            # What both versions do (SPEC.md 3.9.3).
+            fields.update(pair_counts="cumulative", records_after_split="kept",
+                          relabel_after="update", q_rows_after_split="aliased_at_split",
+                          skip_unreachable=False)
+            high = dataclasses.replace(high, q_update="authors")
+            forward = dataclasses.replace(forward, shared_sample="without_replacement")
+            # The results version's own (SPEC.md 3.9.2).
+            fields.update(coverage="results", split_epsilon_boost=1.0, memory_capacity=10_000,
+                          min_steps=RESULTS_MIN_STEPS[0], relabel_counts="add")
+            high = dataclasses.replace(high, epsilon_decrement=0.005)
+            low = dataclasses.replace(low, buffer_size=10_000)
+        fields.update(low=low, high=high, forward=forward)
         fields.update(overrides)
         return cls(**fields)
 
@@ -531,7 +707,8 @@ class GaraState:
 
     ``reachable``/``unreachable`` are the refinement's verdicts per goal pair, ``blocked`` the
     pairs whose split did not fit in ``max_goals`` (not analysed again). ``host_key`` seeds the
-    host step (forward-model initialisation) reproducibly.
+    host step (forward-model initialisation) reproducibly. ``pair_count`` is the ``[G, G]``
+    cumulative experience count of ``pair_counts="cumulative"`` (``None`` otherwise).
     """
 
     obs: jax.Array
@@ -548,6 +725,7 @@ class GaraState:
     blocked: jax.Array
     env_steps: jax.Array
     host_key: jax.Array
+    pair_count: Any = None
 
 
 def initial_partition(config):
@@ -662,6 +840,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     partition0 = initial_partition(config)
     memory_capacity = config.memory_capacity if refining else 1
     windows = refining and config.memory == "windows"
+    cumulative = refining and config.pair_counts == "cumulative"
+    alias_groups = refining and config.q_rows_after_split == "aliased"
     forward = fm.make_forward_model(config.forward if refining else fm.ForwardModelConfig(),
                                     state_dim=dim)
 
@@ -749,11 +929,12 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             records=jnp.zeros((G, G), jnp.int32))
         return GaraState(
             obs=obs, env_state=env_state, dqn=dqn.init(k_dqn),
-            high=hl.init_high_state(high_cfg, G, dim),
+            high=hl.init_high_state(high_cfg, G, dim, alias_groups=alias_groups),
             partition=jax.tree.map(jnp.asarray, partition0), option=option, episode=episode,
             memory=fm.init_memory(memory_capacity, dim), forward=shared,
             reachable=pairs, unreachable=pairs, blocked=pairs,
-            env_steps=jnp.int32(0), host_key=jax.random.key_data(k_host))
+            env_steps=jnp.int32(0), host_key=jax.random.key_data(k_host),
+            pair_count=jnp.zeros((G, G), jnp.int32) if cumulative else None)
 
     # -- one environment step --------------------------------------------------------------
 
@@ -833,10 +1014,18 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         env_steps = s.env_steps + 1
 
         # 5. The high-level memory (GARA only).
-        memory, history = s.memory, episode.history
+        memory, history, pair_count = s.memory, episode.history, s.pair_count
+        if cumulative:
+            # A decision counts once its pair exists (the reference's counts, SPEC.md 3.9.3).
+            pair_count = pair_count.at[here, target].add(
+                (deciding & (pair_count[here, target] > 0)).astype(jnp.int32))
         if windows:
             history, window_start, store = window_to_store(
                 episode, s.obs, option.target_lo, option.target_hi, k)
+            if cumulative:
+                window_goal = locate(partition, window_start)
+                pair_count = pair_count.at[window_goal, option.target].add(
+                    (store & ~option.stale).astype(jnp.int32))
             memory = fm.push_memory(memory, window_start, next_s, option.target_lo,
                                     option.target_hi, reward, 1, env_steps, where=store,
                                     episode=episode.count, data=True)
@@ -878,7 +1067,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             has_prev=episode.has_prev & ~episode_over,
             stalled_action=jnp.where(unchanged & ~episode_over, action, -1).astype(jnp.int32))
         s = s.replace(obs=obs, env_state=env_state, dqn=dqn_state, high=high, option=option,
-                      episode=episode, memory=memory, env_steps=env_steps)
+                      episode=episode, memory=memory, env_steps=env_steps,
+                      pair_count=pair_count)
         return s, stats
 
     # -- one epoch ---------------------------------------------------------------------------

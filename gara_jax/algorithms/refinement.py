@@ -4,10 +4,12 @@ Read top to bottom, for all seeds at once (the states are batched over seeds):
 
 1. **Trigger** (SPEC.md section 3.5). A pair ``(G_s, G_d)``, ``s != d``, explored during the
    last epoch, not known reachable, not blocked (a split that did not fit), not marked
-   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience. The
-   experience is derived from the high-level memory (the summed ``length`` of the pair's
-   rows, the goals located from the stored states and target bounds), so it stays right after
-   splits without bookkeeping.
+   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience. With
+   ``pair_counts="memory"`` the experience is derived from the high-level memory (the summed
+   ``length`` of the pair's rows, the goals located from the stored states and target
+   bounds), so it stays right after splits without bookkeeping; with ``"cumulative"`` it is
+   the reference's counter keyed by goal index (``GaraState.pair_count``, counted in the
+   jitted steps).
 2. **Forward model.** ``forward_model="per_job"``: a fresh model per analysis job, all jobs
    trained in one batched call until their loss is stable; unstable jobs are skipped.
    ``"shared"`` (the reference): every triggered pair updates its seed's shared model once per
@@ -21,8 +23,10 @@ Read top to bottom, for all seeds at once (the states are batched over seeds):
 4. **Splits** on host copies of each seed's padded partition, Q-table, planner graph and marks
    (:func:`apply_split`), the epsilon boost, then everything written back with the layout it
    came with (seed-sharded over the driver's devices, :mod:`gara_jax.train`); with
-   ``relabel_replay`` the low-level replay of every seed whose partition grew gets its
-   hindsight copies (:func:`gara_jax.agents.dqn.append_relabelled`).
+   ``relabel_replay`` the low-level replay of every seed whose partition grew (or, with
+   ``relabel_after="update"``, whose verdicts changed) gets its hindsight copies
+   (:func:`gara_jax.agents.dqn.append_relabelled`), and with ``relabel_counts`` the memory's
+   rows change the cumulative counts.
 
 The host pulls the small per-pair arrays of every seed (partition, marks, experience counts)
 and, of the large ones (the high-level memory), only the rows of the seeds that have a
@@ -50,8 +54,9 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
     ``locate``/``exit_goals`` are the agent's goal lookups, ``dqn`` its low-level learner and
     ``forward`` the :class:`~gara_jax.agents.forward_model.ForwardModel`. ``info`` counts what
     happened (``triggered``, ``stable``, ``analysed``, ``splits``, ``reaches``, ``no_reach``,
-    ``capacity_skips``, ``fit_updates``), holds ``changed [n_seeds]`` (partition grew) and the
-    time spent (``fit_s``, ``refine_s``, ``host_s``).
+    ``capacity_skips``, ``fit_updates``), holds ``changed [n_seeds]`` (partition grew),
+    ``updated [n_seeds]`` (a split, or a whole ``G_s`` found reaching) and the time spent
+    (``fit_s``, ``refine_s``, ``host_s``).
     """
     from gara_jax import partition as part
     from gara_jax import reach
@@ -59,6 +64,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
     G = config.max_goals
     dim = 4
     shared = config.forward_model == "shared"
+    cumulative = config.pair_counts == "cumulative"
+    aliased = config.q_rows_after_split == "aliased"
 
     @SeedJit
     @jax.vmap
@@ -88,6 +95,23 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
 
     @SeedJit
     @jax.vmap
+    def relabel_counts(pair_count, memory, old_partition, new_partition, where):
+        """The memory relabel's count changes (``relabel_counts``; SPEC.md section 3.9.2)."""
+        rows = (jnp.arange(memory.capacity + 1) < memory.size) & memory.data
+        old = locate(old_partition, memory.start)
+        new = locate(new_partition, memory.start)
+        # Targets by index: a piece that keeps an index inherits the rows towards it.
+        target = fm.match_boxes(memory.target_lo, memory.target_hi, old_partition.lo,
+                                old_partition.hi, old_partition.count)
+        ok = rows & (target >= 0) & where
+        flat = lambda start: jnp.where(ok, start * G + jnp.maximum(target, 0), 0)
+        count = pair_count.reshape(-1).at[flat(new)].add(ok.astype(jnp.int32))
+        if config.relabel_counts == "move":
+            count = count.at[flat(old)].add(-ok.astype(jnp.int32))
+        return count.reshape(G, G)
+
+    @SeedJit
+    @jax.vmap
     def replan(state):
         """Exact planner distances on the refined partitions."""
         high = state.high
@@ -102,6 +126,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
     def host_update(states, epoch: int):
         t0 = time.perf_counter()
         start_goal, target_goal, steps, recent = memory_goals(states)
+        if cumulative:
+            steps = states.pair_count  # the reference's counts (SPEC.md 3.9.3)
         steps, recent = jax.device_get((steps, recent))
         host = jax.device_get(dict(
             count=states.partition.count, lo=states.partition.lo, hi=states.partition.hi,
@@ -112,7 +138,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         n_seeds = len(host["count"])
         info = dict(epoch=epoch, triggered=0, stable=0, analysed=0, splits=0, reaches=0,
                     no_reach=0, capacity_skips=0, fit_updates=0,
-                    changed=np.zeros(n_seeds, bool), fit_s=0.0, refine_s=0.0)
+                    changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
+                    fit_s=0.0, refine_s=0.0)
 
         # 1. The trigger.
         ok = recent & (steps >= config.min_steps) & ~host["reachable"] & ~host["blocked"]
@@ -156,18 +183,25 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             np.stack([lo[i][s] for i, s, _ in jobs]), np.stack([hi[i][s] for i, s, _ in jobs]),
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
-            method=config.refine_method, small_box_c1=config.small_box_c1)
+            method=config.refine_method, small_box_c1=config.small_box_c1,
+            coverage=config.coverage)
         info["refine_s"] = time.perf_counter() - t_ref
 
         # 4. Apply the verdicts seed by seed on host copies, then write everything back.
         arrays = jax.device_get(dict(q=states.high.q, succeeded=states.high.succeeded,
-                                     stale=states.option.stale, epsilon=states.high.epsilon))
+                                     stale=states.option.stale, epsilon=states.high.epsilon,
+                                     alias=states.high.alias, pair_count=states.pair_count))
+        # Arrays indexed by goal that the splits rewrite (alias groups, counts: if kept).
+        per_goal = ["q", "succeeded", "reachable", "unreachable", "blocked", "records"]
+        per_goal += ["alias"] if aliased else []
+        per_goal += ["pair_count"] if cumulative else []
         ranked = host["rank"] is not None  # piece_order="parent"
         new = {k: np.array(v) for k, v in dict(
             lo=lo, hi=hi, count=host["count"], q=arrays["q"], succeeded=arrays["succeeded"],
             reachable=host["reachable"], unreachable=host["unreachable"],
             blocked=host["blocked"], stale=arrays["stale"], epsilon=arrays["epsilon"],
-            records=jax.device_get(states.forward.records)).items()}
+            records=jax.device_get(states.forward.records), alias=arrays["alias"],
+            pair_count=arrays["pair_count"]).items() if v is not None}
         if ranked:
             new["rank"] = np.array(host["rank"])
         seeds = {}
@@ -177,9 +211,9 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
                 seeds[i] = dict(
                     partition=part.Partition.create(lo[i][:n], hi[i][:n], G,
                                                     rank=host["rank"][i] if ranked else None),
-                    **{name: new[name][i].copy() for name in (
-                        "q", "succeeded", "reachable", "unreachable", "blocked", "records")})
-            outcome = apply_split(seeds[i], s_idx, d_idx, result, config.q_columns)
+                    **{name: new[name][i].copy() for name in per_goal})
+            outcome = apply_split(seeds[i], s_idx, d_idx, result, config.q_columns,
+                                  config.q_rows_after_split, config.records_after_split)
             info["analysed"] += 1
             info["splits"] += outcome == "split"
             info["reaches"] += outcome == "reaches"
@@ -188,14 +222,17 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             if outcome == "split":
                 info["changed"][i] = True
                 new["epsilon"][i] = min(1.0, new["epsilon"][i] * config.split_epsilon_boost)
+            if outcome in ("split", "reaches"):
+                info["updated"][i] = True
         for i, seed in seeds.items():
             p = seed["partition"]
             new["lo"][i], new["hi"][i], new["count"][i] = p.lo, p.hi, p.count
             if ranked:
                 new["rank"][i] = p.rank
-            for name in ("q", "succeeded", "reachable", "unreachable", "blocked", "records"):
+            for name in per_goal:
                 new[name][i] = seed[name]
             new["stale"][i] |= info["changed"][i]
+        old_partition = states.partition
         partition = states.partition.replace(
             lo=put_like(new["lo"], states.partition.lo),
             hi=put_like(new["hi"], states.partition.hi),
@@ -204,6 +241,10 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         high = states.high.replace(q=put_like(new["q"], states.high.q),
                                    succeeded=put_like(new["succeeded"], states.high.succeeded),
                                    epsilon=put_like(new["epsilon"], states.high.epsilon))
+        if aliased:
+            high = high.replace(alias=put_like(new["alias"], states.high.alias))
+        if cumulative:
+            states = states.replace(pair_count=put_like(new["pair_count"], states.pair_count))
         states = states.replace(
             partition=partition, high=high,
             reachable=put_like(new["reachable"], states.reachable),
@@ -212,8 +253,13 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             option=states.option.replace(stale=put_like(new["stale"], states.option.stale)),
             forward=states.forward.replace(records=put_like(new["records"],
                                                             states.forward.records)))
-        if config.relabel_replay and info["changed"].any():
-            states = states.replace(dqn=relabel(states.dqn, states.partition, info["changed"]))
+        # The relabels run after a split, or (relabel_after="update") after any update.
+        relabelled = info["updated"] if config.relabel_after == "update" else info["changed"]
+        if config.relabel_replay and relabelled.any():
+            states = states.replace(dqn=relabel(states.dqn, states.partition, relabelled))
+        if config.relabel_counts != "none" and relabelled.any():
+            states = states.replace(pair_count=relabel_counts(
+                states.pair_count, states.memory, old_partition, states.partition, relabelled))
         if config.planning:
             states = states.replace(high=replan(states))
         info["host_s"] = time.perf_counter() - t0
@@ -321,8 +367,8 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
 
     Every triggered pair gets one update per episode of the last epoch in which it was chosen
     (its option-start rows carry the episode index), in episode order; each update draws its
-    rows uniformly *with* replacement (the reference samples without; a triggered pair has
-    thousands of rows, so repeats are rare). A pair is ready when it has
+    rows as ``forward.shared_sample`` says (uniformly with replacement, or, as the reference,
+    at most ``batch_size`` distinct rows). A pair is ready when it has
     ``shared_min_records`` records and its latest MSE is less than ``stable_decrease`` above
     the previous one.
     """
@@ -384,7 +430,8 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
     return ready, new_forward, int(live.sum())
 
 
-def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy") -> str:
+def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy",
+                q_rows: str = "copied", records: str = "cleared") -> str:
     """Apply one analysis of the pair ``(G_s, G_d)`` to a seed's host-side arrays (in place).
 
     ``G_s`` is replaced by the reaching boxes then the non-reaching ones (the first keeps index
@@ -394,7 +441,11 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy") -> 
       ``q_columns`` (``"copy"``: every piece gets ``G_s``'s column, and entries between pieces
       ``G_s``'s self-value; ``"reference"``: piece ``s`` keeps its column, the others get 0;
       ``"zero"``: all 0); then ``Q[piece, d] = 0`` for the non-reaching pieces (as the
-      reference does).
+      reference does). ``q_rows`` (GARA's ``q_rows_after_split``): ``"copied"`` zeroes only the
+      non-reaching pieces' entries; ``"aliased_at_split"`` zeroes ``Q[g, d]`` for every piece
+      ``g`` once any piece does not reach (the rows are one object in the reference);
+      ``"aliased"`` also puts the pieces into ``G_s``'s alias group (``seed["alias"]``) and
+      zeroes the whole group's entries.
     - Planner graph: rows and columns copied; then the edge ``piece -> d`` is set for reaching
       pieces and removed for non-reaching ones.
     - Reachability marks: a piece's *row* (the piece as a start) inherits ``G_s``'s verdicts
@@ -403,7 +454,10 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy") -> 
       larger target. Then reaching pieces are marked reachable towards ``G_d`` and the others
       unreachable.
     - Shared forward-model records (``seed["records"]``, if present): cleared for every pair
-      that involves a piece.
+      that involves a piece (``records="cleared"``), or only for the appended pieces, index
+      ``s`` keeping its records (``records="kept"``, the reference's records keyed by index).
+    - Cumulative pair counts (``seed["pair_count"]``, if present): index ``s`` keeps them, the
+      appended pieces' rows and columns start from 0.
 
     An analysis whose boxes merge back into ``G_s`` changes no box: if all of ``G_s`` reaches,
     the pair is marked reachable; if none of it does, nothing is marked (as in the reference,
@@ -452,12 +506,20 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy") -> 
         seed["reachable"][:, p] = False
         seed["unreachable"][:, p] = False
         seed["blocked"][:, p] = False
-        if "records" in seed:
+        if "records" in seed and (records == "cleared" or p != s):
             seed["records"][p], seed["records"][:, p] = 0, 0
+        if "pair_count" in seed and p != s:
+            seed["pair_count"][p], seed["pair_count"][:, p] = 0, 0
+    group = pieces
+    if q_rows == "aliased":
+        alias = seed["alias"]
+        alias[pieces] = alias[s]
+        group = np.flatnonzero(alias == alias[s])
     for n, p in enumerate(pieces):
         hits = n < n_reach
         seed["reachable"][p, d], seed["unreachable"][p, d] = hits, not hits
         succ[p, d] = hits
         if not hits:
-            q[p, d] = 0.0
+            # The reference's rows are one object: the zero reaches every row of the group.
+            q[group if q_rows != "copied" else p, d] = 0.0
     return "split"

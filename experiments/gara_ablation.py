@@ -64,8 +64,10 @@ def _variants():
         "previous_default": ("GaraConfig() before SPEC revision 2 (session 4)", previous),
         "reference": ("GaraConfig.reference(): the authors' final maze version", ref),
         # The reference with one of its mechanisms reverted.
-        "ref-options_memory": ("memory of whole options (+ hindsight copies), not windows",
-                               rep(ref, memory="options")),
+        "ref-options_memory": ("memory of whole options (+ hindsight copies), not windows "
+                               "(counts from the memory)",
+                               rep(ref, memory="options", pair_counts="memory",
+                                   relabel_counts="none")),
         "ref-per_job_model": ("a fresh forward model per analysis, fitted until stable",
                               rep(ref, forward_model="per_job")),
         "ref-thresholds_rev1": ("tau1 0.7, tau2 0.1, small boxes never reach (revision 1)",

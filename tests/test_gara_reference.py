@@ -43,8 +43,9 @@ def test_reference_presets_hold_spec_revision_2():
         assert dataclasses.replace(ours.low, learning_rate=0.01) == ref.low
     assert (g.high.epsilon_decrement, g.high.tie_break) == (0.0005, "lowest")
     assert g.entry_reward == "previous_plus_one" and g.goal_membership == "box"
-    # The planning variant skips unreachable pairs (only Q-learning has the type bug).
-    assert GaraConfig.reference(planning=True).skip_unreachable
+    # Neither variant skips unreachable pairs: the type bug hits both (SPEC 3.9.4 corrects
+    # revision 2, which had the planning variant skip them).
+    assert not GaraConfig.reference(planning=True).skip_unreachable
     h = HandcraftedConfig.reference()
     assert h.intrinsic == "every_step" and h.high.tie_break == "lowest"
     assert GaraConfig.reference(min_steps=7).min_steps == 7

@@ -298,6 +298,18 @@ def test_cumulative_counts_survive_a_split_and_the_relabel_moves_or_inflates_the
     assert add[:, 1].sum() == 700 + ROWS
 
 
+def test_host_step_writes_the_alias_groups_of_a_split(monkeypatch, crafted):
+    states, params = crafted
+    q = states.high.q.at[0, 0, 0].set(0.1).at[0, 0, 1].set(0.2)
+    high = states.high.replace(q=q, alias=jnp.arange(16, dtype=jnp.int32)[None])
+    _, new, info = _scripted_host_step(monkeypatch, (states.replace(high=high), params),
+                                       _UpperReaches, q_rows_after_split="aliased")
+    assert info["splits"] == 1
+    assert np.asarray(new.high.alias[0, :5]).tolist() == [0, 1, 0, 0, 4]
+    np.testing.assert_allclose(np.asarray(new.high.q[0, [0, 2, 3], 1]), 0.0)
+    np.testing.assert_allclose(np.asarray(new.high.q[0, [0, 2, 3], 0]), 0.1)
+
+
 class _WholeBoxReaches:
     reaching_lo, reaching_hi = np.array([[0, 0, -1, -1.0]]), np.array([[1, 3, 1, 1.0]])
     nonreaching_lo = nonreaching_hi = np.zeros((0, 4))
@@ -378,6 +390,27 @@ def test_results_preset_field_by_field():
     assert (hc.high.epsilon_decrement, hc.low.buffer_size, hc.high.q_update) == (
         0.005, 10_000, "authors")
     assert hc.intrinsic == "every_step"
+
+
+def test_final_preset_has_what_both_versions_do():
+    """SPEC.md 3.9.3-3.9.4 on the final version; its own values stay (revision 2's 3.3-3.6)."""
+    for planning in (False, True):
+        f = GaraConfig.reference(planning=planning)
+        assert (f.pair_counts, f.records_after_split, f.relabel_after, f.q_rows_after_split,
+                f.relabel_counts, f.skip_unreachable) == (
+            "cumulative", "kept", "update", "aliased_at_split", "move", False)
+        assert (f.high.q_update, f.forward.shared_sample) == ("authors", "without_replacement")
+        assert (f.coverage, f.split_epsilon_boost, f.memory_capacity, f.min_steps) == (
+            "final", 1.5, 50_000, 5000)
+        assert (f.high.epsilon_decrement, f.low.buffer_size) == (0.0005, 100_000)
+    assert HandcraftedConfig.reference().high.q_update == "authors"
+    # The project's defaults keep the first readings (nothing there changed numerically).
+    ours = GaraConfig()
+    assert (ours.pair_counts, ours.records_after_split, ours.relabel_after,
+            ours.q_rows_after_split, ours.relabel_counts, ours.coverage) == (
+        "memory", "cleared", "split", "copied", "none", "final")
+    assert (ours.high.q_update, ours.forward.shared_sample) == ("written_entry",
+                                                                "with_replacement")
 
 
 @pytest.mark.parametrize("field,value", [

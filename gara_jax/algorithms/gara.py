@@ -236,10 +236,10 @@ class HandcraftedConfig:
         """
         if version not in REFERENCE_VERSIONS:
             raise ValueError(f"version: must be one of {REFERENCE_VERSIONS}, got {version!r}")
-        high = dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest")
+        high = dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest", q_update="authors")
         low = LOW_REFERENCE
         if version == "results":
-            high = dataclasses.replace(high, epsilon_decrement=0.005, q_update="authors")
+            high = dataclasses.replace(high, epsilon_decrement=0.005)
             low = dataclasses.replace(low, buffer_size=10_000)
         fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
                       reached_at_start=False, stall_penalty=None, self_target="always",
@@ -271,11 +271,17 @@ class GaraConfig(HandcraftedConfig):
       in the reference; at 0.01 a seed's greedy policy flips between success and failure from
       one epoch to the next (see :class:`HandcraftedConfig`).
 
-    Everything else is the reference's: sliding-window memory, shared forward model, the
-    trigger, thresholds, small-box rule, epsilon boost, Q rows copied, the other DQN and the
-    high-level hyper-parameters. The options added to study the remaining greedy failures
-    (``avoid_stalled_action``, ``avoid_repeated_decisions``, ``piece_order``,
-    ``initial_split_x``, ``forward.shared_steps``) are off, as in the reference.
+    Everything else is the reference's as SPEC.md revision 2 described it: sliding-window
+    memory, shared forward model, the trigger, thresholds, small-box rule, epsilon boost, the
+    other DQN and the high-level hyper-parameters. The options added to study the remaining
+    greedy failures (``avoid_stalled_action``, ``avoid_repeated_decisions``, ``piece_order``,
+    ``initial_split_x``, ``forward.shared_steps``) are off, as in the reference. The
+    mechanisms that revision 3 (SPEC.md sections 3.9.3-3.9.4) found in both of the authors'
+    versions keep this project's first readings here, not yet measured against the preset:
+    counts recomputed from the memory (``pair_counts="memory"``), MSE records cleared after a
+    split, the relabel only after a split (``relabel_after="split"``), Q rows copied
+    (``q_rows_after_split="copied"``), the Q update's difference against the written entry
+    (``high.q_update="written_entry"``), forward-model samples drawn with replacement.
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
         max_goals: partition capacity; a split that would exceed it is skipped and counted.
@@ -493,36 +499,45 @@ class GaraConfig(HandcraftedConfig):
     def reference(cls, version: str = "final", planning: bool = False, **overrides):
         """The authors' GARA (SPEC.md section 3, revision 3), in one of their versions.
 
-        ``version="final"`` (the default), the authors' final maze version (SPEC.md 3.1-3.7):
+        ``version="final"`` (the default), the authors' final maze version (SPEC.md 3.1-3.7,
+        with what 3.9.3-3.9.4 add about both versions):
 
         - high-level memory: sliding windows (``memory="windows"``, 3.4), 50,000 rows
           (``memory_capacity``, 3.4); option-end rows are not forward-model data (the
           reference's swapped-fields bug, 3.4);
-        - trigger: ``min_steps=5000`` (3.5); pairs marked unreachable analysed again only in
-          the Q-learning variant (``skip_unreachable=planning``, 3.5 of revision 2; see the
-          list of known differences below);
+        - trigger: ``min_steps=5000`` (3.5) on cumulative counts keyed by goal index, +1 per
+          window and +1 per decision once the pair exists (``pair_counts="cumulative"``,
+          3.9.3); pairs marked unreachable analysed again by both high levels
+          (``skip_unreachable=False``, the reference's type bug, 3.9.4);
         - forward model: one shared, incrementally trained network per seed with the
-          stability rule (``forward_model="shared"``, 3.5);
+          stability rule, each update on at most 32 rows drawn without replacement
+          (``forward_model="shared"``, ``forward.shared_sample="without_replacement"``, 3.5);
+          MSE records keyed by goal index, kept across a split by the piece that keeps the
+          index (``records_after_split="kept"``, 3.9.3);
         - analysis: ``tau1=0.9``, ``tau2=0.01``, small boxes reach iff ``c1 >= 0.5``
           (``small_box_c1``), the final coverage rule (``coverage="final"``, 3.6);
-        - after a split: Q rows copied, the first reaching piece keeping ``G_s``'s column
-          (``q_columns="reference"``, 3.6); epsilon x1.5 (``split_epsilon_boost``, 3.3);
-          hindsight relabelling of the low-level replay (``relabel_replay``, 3.6);
+        - after a split: Q rows aliased, the zero of ``Q[non-reaching piece][d]`` reaching
+          every piece's row (``q_rows_after_split="aliased_at_split"``, 3.9.3: the only
+          consequence SPEC.md states; ``"aliased"`` keeps the alias for good), the first
+          reaching piece keeping ``G_s``'s column (``q_columns="reference"``, 3.6); epsilon
+          x1.5 (``split_epsilon_boost``, 3.3);
+        - after every update (a split, or a whole ``G_s`` found reaching:
+          ``relabel_after="update"``, 3.9.3): hindsight relabelling of the low-level replay
+          (``relabel_replay``, 3.6) and the memory's relabel moving each window's count to
+          its new start goal, -1 then +1 (``relabel_counts="move"``, 3.9.2);
         - low level: the "previous plus one" entry reward on closed boxes
           (``entry_reward``, ``goal_membership="box"``, ``reached_at_start=False``, no stall
           penalty, 3.2); the DQN of 3.2 (``LOW_REFERENCE``: Adam 0.01, replay 100,000,
           target copy every 20 steps);
-        - high level: epsilon decrement 0.0005, lowest-index greedy ties (3.3).
+        - high level: epsilon decrement 0.0005, lowest-index greedy ties, the update written
+          into the reached goal's entry with its difference taken against the chosen
+          target's (``high.q_update="authors"``, 3.3, 3.9.3).
 
-        Known differences of this preset from the final version (SPEC.md 3.9.3, 3.9.4), each
-        an option that ``version="results"`` sets: counts recomputed from the memory
-        (``pair_counts``), MSE records cleared after a split (``records_after_split``), the
-        relabel only after a split (``relabel_after``), Q rows copied, not aliased
-        (``q_rows_after_split``), the difference of the Q update taken against the written
-        entry (``high.q_update``), samples drawn with replacement
-        (``forward.shared_sample``), the Planning variant skipping unreachable pairs
-        (``skip_unreachable``); and the refinement between 3,000-step epochs instead of
-        after every episode (``steps_per_epoch``; not an option yet).
+        Known differences from the authors' code: the refinement runs between 3,000-step
+        epochs, not after every episode (3.9.3; ``steps_per_epoch``, not an option yet); the
+        memory stores target boxes, not indices, so windows towards a goal split since are
+        no pair's data; a split clears the reachability marks towards every piece, index
+        ``s`` included; widths are compared with 0, not 1e-5 (3.6).
 
         ``version="results"``, the version that made the authors' result files (SPEC.md
         3.9), is the final one with:
@@ -536,18 +551,9 @@ class GaraConfig(HandcraftedConfig):
         - ``min_steps=1000``: SPEC.md leaves it open (1,000 in the results commit's script,
           5,000 in the final one; ``RESULTS_MIN_STEPS``); this preset takes 1,000 without
           knowing which made the files, and ``min_steps=5000`` gives the other;
-        - relabel count inflation: after each update, +1 on the pair count of every
-          forward-model row of the memory (``relabel_counts="add"``, 3.9.2);
-        - what both versions do (3.9.3): cumulative counts keyed by goal index
-          (``pair_counts="cumulative"``) with the MSE records kept across a split
-          (``records_after_split="kept"``); the relabels also after an analysis whose whole
-          box reaches (``relabel_after="update"``); Q rows aliased, the zeroing of
-          ``Q[non-reaching piece][d]`` hitting every piece (``q_rows_after_split=
-          "aliased_at_split"``, the only consequence SPEC.md states; ``"aliased"`` keeps
-          the alias for good); the difference of the Q update taken against the chosen
-          target (``high.q_update="authors"``); the unreachable-pair skip failing for both
-          high levels (``skip_unreachable=False``); at most 32 rows sampled without
-          replacement per forward-model update (``forward.shared_sample``, 3.5).
+        - relabel count inflation: +1 on the pair count of every window of the memory
+          instead of the final version's move (``relabel_counts="add"``, 3.9.2);
+        - everything else as the final preset, including what both versions do (3.9.3).
           Not yet built: the per-episode cadence, Planning started from the Q-learning
           run's final partition.
 
@@ -563,22 +569,20 @@ class GaraConfig(HandcraftedConfig):
         """
         if version not in REFERENCE_VERSIONS:
             raise ValueError(f"version: must be one of {REFERENCE_VERSIONS}, got {version!r}")
-        high = dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest")
-        low, forward = LOW_REFERENCE, fm.ForwardModelConfig()
+        high = dataclasses.replace(hl.HighLevelConfig(), tie_break="lowest", q_update="authors")
+        low = LOW_REFERENCE
+        forward = fm.ForwardModelConfig(shared_sample="without_replacement")
         fields = dict(
             planning=planning, memory="windows", memory_capacity=50_000,
             forward_model="shared", min_steps=5000, tau1=0.9, tau2=0.01, small_box_c1=0.5,
             split_epsilon_boost=1.5, relabel_replay=True, q_columns="reference",
-            skip_unreachable=planning, intrinsic="first_entry", entry_reward="previous_plus_one",
+            skip_unreachable=False, intrinsic="first_entry", entry_reward="previous_plus_one",
             reached_at_start=False, goal_membership="box", stall_penalty=None,
-            self_target="always", coverage="final")
+            self_target="always", coverage="final",
+            # What both versions do (SPEC.md 3.9.3); the final version's relabel (3.9.2).
+            pair_counts="cumulative", records_after_split="kept", relabel_after="update",
+            q_rows_after_split="aliased_at_split", relabel_counts="move")
         if version == "results":
-            # What both versions do (SPEC.md 3.9.3).
-            fields.update(pair_counts="cumulative", records_after_split="kept",
-                          relabel_after="update", q_rows_after_split="aliased_at_split",
-                          skip_unreachable=False)
-            high = dataclasses.replace(high, q_update="authors")
-            forward = dataclasses.replace(forward, shared_sample="without_replacement")
             # The results version's own (SPEC.md 3.9.2).
             fields.update(coverage="results", split_epsilon_boost=1.0, memory_capacity=10_000,
                           min_steps=RESULTS_MIN_STEPS[0], relabel_counts="add")

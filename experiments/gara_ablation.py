@@ -72,6 +72,8 @@ def _variants():
                               rep(ref, forward_model="per_job")),
         "ref-thresholds_rev1": ("tau1 0.7, tau2 0.1, small boxes never reach (revision 1)",
                                 rep(ref, tau1=0.7, tau2=0.1, small_box_c1=None)),
+        "ref-epoch_cadence": ("trigger, forward model and analysis after every 3,000-step "
+                              "epoch, not after every episode", rep(ref, cadence="epoch")),
         "ref-no_eps_boost": ("no x1.5 epsilon boost after a split",
                              rep(ref, split_epsilon_boost=1.0)),
         "ref-no_relabel": ("no hindsight relabelling of the low-level replay",

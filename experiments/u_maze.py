@@ -3,8 +3,12 @@
 By default trains ``gara`` and ``gara_planning`` (``GaraConfig()``, Q-learning and Planning
 high levels), ``gara_reference`` (``GaraConfig.reference()``, the authors' version),
 ``handcrafted`` and ``hiro_paper`` (``HiroConfig.paper()``, the HIRO baseline the paper ran);
-``--methods all`` adds ``hiro`` (HIRO as published). All seeds of a method are vmapped in one
-process. Diagnostic methods, the paper's HIRO with one of its mechanisms changed, can be named
+``--methods all`` adds ``hiro`` (HIRO as published), ``gara_reference_results``
+(``GaraConfig.reference(version="results")``, the version that made the authors' result files,
+SPEC.md 3.9) and ``gara_reference_results_planning`` (the same with the Planning high level,
+each seed started from the same seed's final ``gara_reference_results`` partition, as the
+authors ran it, SPEC.md 3.9.3; naming it alone runs ``gara_reference_results`` first). All
+seeds of a method are vmapped in one process. Diagnostic methods, the paper's HIRO with one of its mechanisms changed, can be named
 explicitly: ``hiro_paper_standard_target`` (its reward-less critic target fixed),
 ``hiro_paper_full_range`` (its actor output scaled to the whole goal box),
 ``hiro_paper_unclipped_low`` (its low level's TD targets not clipped to [-1, 1], as published
@@ -59,11 +63,16 @@ from pathlib import Path
 import numpy as np
 
 DEFAULT_METHODS = ("gara", "gara_planning", "gara_reference", "handcrafted", "hiro_paper")
-ALL_METHODS = (*DEFAULT_METHODS, "hiro")  # --methods all
+#: The authors' Planning runs started from their Q-learning run's final partitions (SPEC.md
+#: 3.9.3): method -> the method whose final partitions (same seeds) it starts from.
+STARTS_FROM = {"gara_reference_results_planning": "gara_reference_results"}
+ALL_METHODS = (*DEFAULT_METHODS, "hiro", "gara_reference_results",
+               "gara_reference_results_planning")  # --methods all
 DIAGNOSTIC_METHODS = ("hiro_paper_standard_target", "hiro_paper_full_range",
                       "hiro_paper_unclipped_low", "hiro_paper_full_range_unclipped_low")
 METHODS = (*ALL_METHODS, *DIAGNOSTIC_METHODS)
-GARA_METHODS = ("gara", "gara_planning", "gara_reference")
+GARA_METHODS = ("gara", "gara_planning", "gara_reference", "gara_reference_results",
+                "gara_reference_results_planning")
 LAST_STEPS = 30_000  # the final training success counts the episodes ending in these steps
 EPISODE_WINDOW = (300, 400)  # the last quarter of the reference's 400-episode run
 CURVE_EPISODES, CURVE_WINDOW = 400, 30  # the paper's curve: 400 episodes, 30-episode average
@@ -93,6 +102,10 @@ def method_config(method: str, *, env: str = "u_maze", steps_per_epoch: int | No
     factories = {"gara": lambda **kw: GaraConfig(planning=False, **kw),
                  "gara_planning": lambda **kw: GaraConfig(planning=True, **kw),
                  "gara_reference": lambda **kw: GaraConfig.reference(planning=False, **kw),
+                 "gara_reference_results": lambda **kw: GaraConfig.reference(
+                     version="results", planning=False, **kw),
+                 "gara_reference_results_planning": lambda **kw: GaraConfig.reference(
+                     version="results", planning=True, **kw),
                  "handcrafted": HandcraftedConfig, "hiro_paper": HiroConfig.paper,
                  "hiro": HiroConfig,
                  "hiro_paper_standard_target": paper_high(critic_target="standard"),
@@ -116,7 +129,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="environment steps per seed (default 120000, rounded up to epochs)")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help=f"comma-separated subset of {','.join(METHODS)}, or 'all' "
-                        f"(the default and hiro; default: {','.join(DEFAULT_METHODS)})")
+                        f"(the default, hiro and the two gara_reference_results methods; "
+                        f"default: {','.join(DEFAULT_METHODS)})")
     p.add_argument("--env", default="u_maze", choices=ENVS,
                    help="u_maze (kinematic, the paper's) or point_u_maze (brax rigid body)")
     p.add_argument("--out", default=None, help="output directory (default results/ENV)")
@@ -184,6 +198,12 @@ def validate(args, *, write: bool = True) -> list[str]:
                          f"choose from {', '.join(METHODS)}, or all")
     if len(set(methods)) != len(methods):
         raise UsageError(f"--methods: repeated method in {args.methods!r}")
+    for method, source in STARTS_FROM.items():
+        # The method runs from the source's final partitions: the source runs first.
+        if method in methods:
+            if source in methods:
+                methods.remove(source)
+            methods.insert(methods.index(method), source)
     if args.seeds < 1:
         raise UsageError(f"--seeds: must be >= 1, got {args.seeds}")
     if args.steps < 1:
@@ -297,9 +317,13 @@ def run_config(args, methods) -> dict:
 
     # Resolved (the default depends on the device count): a resume must compile alike.
     invariant = resolve_batch_invariant(getattr(args, "batch_invariant", None), seed_mesh(None))
-    return {"seeds": args.seeds, "steps": args.steps, "methods": methods,
-            "steps_per_epoch": args.steps_per_epoch, "quick": args.quick, "env": args.env,
-            "batch_invariant": invariant, "configs": configs}
+    out = {"seeds": args.seeds, "steps": args.steps, "methods": methods,
+           "steps_per_epoch": args.steps_per_epoch, "quick": args.quick, "env": args.env,
+           "batch_invariant": invariant, "configs": configs}
+    starts = {m: STARTS_FROM[m] for m in methods if m in STARTS_FROM}
+    if starts:
+        out["starts_from"] = starts  # each seed from the same seed's final partition
+    return out
 
 
 class _Progress:
@@ -322,11 +346,12 @@ class _Progress:
         self.bar.close()
 
 
-def run_method(method, args, ckpt_dir: Path) -> dict:
+def run_method(method, args, ckpt_dir: Path, start_from: dict | None = None) -> dict:
     """Train one method on all seeds (resuming from its checkpoint if asked); returns its record:
     ``metrics`` (name -> [n_epochs][n_seeds] lists), ``episodes`` (field -> per-seed lists of
     every training episode), ``snapshots`` (per seed: the partition at step 0 and after every
-    epoch that changed it) and ``wall_time_s``."""
+    epoch that changed it) and ``wall_time_s``. ``start_from``: another method's record, whose
+    final partitions (its last snapshot of each seed) the seeds start from."""
     from gara_jax import checkpoint
     from gara_jax.train import EPISODE_FIELDS, init_loop, n_epochs_for, train_epochs
 
@@ -335,7 +360,11 @@ def run_method(method, args, ckpt_dir: Path) -> dict:
     n_epochs = n_epochs_for(config, args.steps)
     path, legacy = ckpt_dir / method, ckpt_dir / f"{method}.npz"  # orbax; the previous format
     invariant = getattr(args, "batch_invariant", None)
-    loop = init_loop(config, args.seeds, batch_invariant=invariant)
+    initial = None
+    if start_from is not None:
+        initial = [(np.asarray(snaps[-1]["lo"]), np.asarray(snaps[-1]["hi"]))
+                   for snaps in start_from["snapshots"]]
+    loop = init_loop(config, args.seeds, batch_invariant=invariant, initial_partitions=initial)
     record = {"metrics": {}, "episodes": {f: [[] for _ in range(args.seeds)]
                                           for f in EPISODE_FIELDS},
               "snapshots": _initial_snapshots(loop.states, args.seeds), "wall_time_s": 0.0}
@@ -454,9 +483,10 @@ def partition_seed(record) -> tuple[int, str]:
 def partition_at(snaps, step):
     """The partition in effect at ``step``: the last snapshot taken at or before it.
 
-    The partition changes only in the host step between epochs (a snapshot is taken after
-    each one that changed it), so inside an epoch it is the one the epoch started with: the
-    panel at 1,000 steps, inside the first 3,000-step epoch, is exact.
+    The partition changes only in a host step (a snapshot, stamped with the seed's step
+    count, is taken after each one that changed it: between epochs, or with
+    ``cadence="episode"`` after an episode), so between snapshots it is the last one's: the
+    panel at 1,000 steps is exact.
     """
     return [s for s in snaps if s["step"] <= step][-1]
 
@@ -563,7 +593,8 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     try:
         for m in methods:
-            records[m] = run_method(m, args, out / "checkpoints")
+            records[m] = run_method(m, args, out / "checkpoints",
+                                    start_from=records.get(STARTS_FROM.get(m)))
     except KeyboardInterrupt:
         print(f"\ninterrupted: completed epochs are saved; continue with --resume --out "
               f"{args.out}", file=sys.stderr)

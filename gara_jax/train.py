@@ -8,7 +8,13 @@ and a run can be resumed from its :class:`LoopState` (the per-seed agent states,
 and the next epoch index) at any epoch boundary.
 
 Each epoch is one call of ``jit(vmap(train_epoch then evaluate))`` over seeds; algorithms with a
-host step (GARA) then run ``host_update`` on the batched states before the next epoch.
+host step (GARA) then run ``host_update`` on the batched states before the next epoch. GARA with
+``cadence="episode"`` (its reference presets) runs an epoch as several jitted segments instead:
+each takes every seed to the end of its current episode (or of the epoch), drawing the keys an
+epoch call would, and the host step then processes the seeds whose episode ended, before their
+next episode (:func:`_episode_cadence_epoch`); the state metrics and the evaluation follow the
+epoch's last segment. Epochs, metrics and checkpoints are the same ``steps_per_epoch`` blocks.
+Such a run is one process only (``jax.distributed`` is refused for it).
 
 Devices: the seed axis of every agent-state leaf is sharded over a 1-D mesh of ``devices``
 (axis ``"seeds"``, ``NamedSharding(mesh, PartitionSpec("seeds"))``); seeds never communicate,
@@ -202,11 +208,46 @@ def _epoch_fn(alg: Algorithm):
     return run
 
 
+_SEGMENT_AXIS = "segment_seeds"
+
+
+def _segment_fn(alg: Algorithm):
+    """``cadence="episode"``: the epoch's steps up to each seed's episode end (vmapped over
+    seeds with the axis name :data:`_SEGMENT_AXIS`, so that seeds done idle cheaply)."""
+    def run(state, key_data, epoch):
+        key = jax.random.fold_in(jax.random.wrap_key_data(key_data), epoch)
+        k_train, _ = jax.random.split(key)  # the epoch's training key, as in _epoch_fn
+        return alg.train_segment(state, k_train, epoch, axis_name=_SEGMENT_AXIS)
+
+    return run
+
+
+def _finish_fn(alg: Algorithm):
+    """``cadence="episode"``: the epoch's state metrics and evaluation (its key as in
+    :func:`_epoch_fn`)."""
+    def run(state, key_data, epoch):
+        key = jax.random.fold_in(jax.random.wrap_key_data(key_data), epoch)
+        _, k_eval = jax.random.split(key)
+        metrics = dict(alg.state_metrics(state))
+        metrics.update(alg.evaluate(state, k_eval))
+        return metrics
+
+    return run
+
+
+def cadence_of(config) -> str:
+    """``"episode"`` for a config whose host step runs after every episode (GARA's
+    ``cadence``), else ``"epoch"``."""
+    return getattr(config, "cadence", "epoch")
+
+
 class _Compiled(NamedTuple):
     alg: Algorithm
     init: SeedJit  # vmap(init) from seed ints: (states, loop key data)
     run: SeedJit  # vmap(train_epoch then evaluate), states donated
     mesh: Mesh
+    segment: SeedJit | None = None  # cadence="episode": vmap(train_segment), states donated
+    finish: SeedJit | None = None  # cadence="episode": vmap(state metrics, evaluate)
 
 
 def _build(config, mesh: Mesh, batch_invariant: bool) -> _Compiled:
@@ -219,7 +260,15 @@ def _build(config, mesh: Mesh, batch_invariant: bool) -> _Compiled:
     # The old states are not reused after an epoch, so XLA may update them in place.
     run = SeedJit(jax.vmap(_epoch_fn(alg), in_axes=(0, 0, None)), batched=(0, 1),
                   batch_invariant=batch_invariant, donate_argnums=0)
-    return _Compiled(alg, SeedJit(init, batch_invariant=batch_invariant), run, mesh)
+    segment = finish = None
+    if cadence_of(config) == "episode":
+        segment = SeedJit(jax.vmap(_segment_fn(alg), in_axes=(0, 0, None),
+                                   axis_name=_SEGMENT_AXIS), batched=(0, 1),
+                          batch_invariant=batch_invariant, donate_argnums=0)
+        finish = SeedJit(jax.vmap(_finish_fn(alg), in_axes=(0, 0, None)), batched=(0, 1),
+                         batch_invariant=batch_invariant)
+    return _Compiled(alg, SeedJit(init, batch_invariant=batch_invariant), run, mesh, segment,
+                     finish)
 
 
 _build_cached = functools.lru_cache(maxsize=8)(_build)
@@ -308,9 +357,96 @@ def place(loop: LoopState, devices=None) -> LoopState:
     return loop._replace(states=jax.tree.map(put, loop.states), keys=put(loop.keys))
 
 
-def init_loop(config, seeds, *, devices=None, batch_invariant: bool | None = None) -> LoopState:
+def starting_partitions(config, partitions, n_seeds: int):
+    """``partitions`` (one per seed) as one seed-batched, validated
+    :class:`~gara_jax.partition.Partition` for GARA ``config``'s states.
+
+    Each item is a :class:`~gara_jax.partition.Partition` (one seed's, e.g. from
+    :func:`final_partitions`), a :class:`PartitionSnapshot` or a pair ``(lo, hi)`` of
+    ``[N, 4]`` boxes. Every partition must tile the U-maze's state space exactly
+    (:func:`gara_jax.partition.check_tiling`: ``[0, 3]^2 x [-1, 1]^2``, no overlaps, no gaps)
+    and fit in ``config.max_goals``. With ``piece_order="parent"`` a partition's ``rank`` is
+    kept (index order if it has none); otherwise a ranked partition is refused. Raises
+    ``ValueError`` naming ``initial_partitions`` (and the seed's row) otherwise.
+
+    Example:
+        >>> from gara_jax.algorithms import GaraConfig
+        >>> from gara_jax.partition import handcrafted
+        >>> p = starting_partitions(GaraConfig(max_goals=8), [handcrafted(8)] * 2, 2)
+        >>> p.lo.shape, p.count.tolist()
+        ((2, 8, 4), [6, 6])
+        >>> starting_partitions(GaraConfig(), [([[0.0, 0, -1, -1]], [[1.0, 3, 1, 1]])], 1)
+        Traceback (most recent call last):
+        ...
+        ValueError: initial_partitions[0]: partition: boxes do not cover the domain ...
+    """
+    from gara_jax import partition as part
+    from gara_jax.algorithms import GaraConfig
+
+    if not isinstance(config, GaraConfig):
+        raise ValueError("initial_partitions: only GARA (a GaraConfig) starts from a given "
+                         f"partition, got a {type(config).__name__}")
+    if isinstance(partitions, part.Partition) or not isinstance(
+            partitions, Sequence) or len(partitions) != n_seeds:
+        got = len(partitions) if isinstance(partitions, Sequence) else type(partitions).__name__
+        raise ValueError(f"initial_partitions: one partition per seed ({n_seeds}), got {got}")
+    ranked = config.piece_order == "parent"
+    rows = []
+    for i, item in enumerate(partitions):
+        try:
+            rank = None
+            if isinstance(item, part.Partition):
+                if np.ndim(item.lo) != 2:
+                    raise ValueError(f"one seed's partition ([G, D] boxes), got boxes of "
+                                     f"shape {np.shape(item.lo)}")
+                lo, hi = item.boxes()
+                rank = None if item.rank is None else np.asarray(item.rank)
+            elif isinstance(item, PartitionSnapshot):
+                lo, hi = item.lo, item.hi
+            elif isinstance(item, Sequence) and len(item) == 2:
+                lo, hi = item
+            else:
+                raise ValueError(f"expected a Partition, a PartitionSnapshot or (lo, hi), got "
+                                 f"{type(item).__name__}")
+            if rank is not None and not ranked:
+                raise ValueError("a ranked partition, but piece_order is not 'parent'")
+            if ranked and rank is not None and len(rank) != config.max_goals:
+                raise ValueError(f"its rank has {len(rank)} entries, max_goals is "
+                                 f"{config.max_goals}")
+            if np.shape(lo)[-1:] != (4,):
+                raise ValueError(f"boxes over the U-maze's 4 dimensions, got shape "
+                                 f"{np.shape(lo)}")
+            p = part.Partition.create(lo, hi, config.max_goals,
+                                      rank=(True if rank is None else rank) if ranked else None)
+            part.check_tiling(p)
+        except ValueError as err:  # PartitionFullError included
+            raise ValueError(f"initial_partitions[{i}]: {err}") from None
+        rows.append(p)
+    return jax.tree.map(lambda *a: jnp.stack(a), *rows)
+
+
+def final_partitions(result) -> list:
+    """Each seed's partition at the end of a run (a :class:`TrainResult` or a
+    :class:`LoopState`), as one-seed :class:`~gara_jax.partition.Partition` objects: what
+    ``initial_partitions`` takes."""
+    loop = result.final if isinstance(result, TrainResult) else result
+    partition = fetch(loop.states.partition)
+    return [jax.tree.map(lambda a, i=i: jnp.asarray(a[i]), partition)
+            for i in range(len(loop.seeds))]
+
+
+def init_loop(config, seeds, *, devices=None, batch_invariant: bool | None = None,
+              initial_partitions=None) -> LoopState:
     """Fresh per-seed agent states (epoch 0) for ``seeds`` (a count or a sequence), sharded
     over ``seed_mesh(devices)`` (``batch_invariant``: as in :func:`train_many`).
+
+    ``initial_partitions`` (GARA only; one per seed, in seed order, see
+    :func:`starting_partitions`): each seed starts from the given partition instead of
+    SPEC.md section 2's two boxes. Only the partition is taken: everything else (Q-table,
+    planner graph, reachability marks, pair counts, memory, forward model, low level) is
+    the fresh agent's, so a Planning run started from a Q-learning run's final partitions is
+    the authors' (SPEC.md 3.9.3: one partition list passed to both agents, each agent with its
+    own learners), and it may refine the partition further.
 
     Example:
         >>> from gara_jax.algorithms import HandcraftedConfig
@@ -321,8 +457,16 @@ def init_loop(config, seeds, *, devices=None, batch_invariant: bool | None = Non
     seeds = seed_list(seeds)
     comp = compiled(config, devices, batch_invariant)
     check_divisible(len(seeds), comp.mesh)
+    start = None
+    if initial_partitions is not None:
+        start = fetch(starting_partitions(config, initial_partitions, len(seeds)))
     states, loop_keys = comp.init(_global_array(np.asarray(seeds, np.int32),
                                                 seed_sharding(comp.mesh)))
+    if start is not None:
+        sharding = seed_sharding(comp.mesh)
+        states = states.replace(partition=jax.tree.map(
+            lambda v, like: _global_array(np.asarray(v, like.dtype), sharding), start,
+            states.partition))
     return LoopState(states=states, keys=loop_keys, epoch=0, seeds=tuple(seeds))
 
 
@@ -378,6 +522,98 @@ def _snapshots(states) -> list | None:
                               int(n[i])) for i in range(len(n))]
 
 
+def _episode_cadence_epoch(comp: _Compiled, loop: LoopState, epoch: int):
+    """One epoch of ``cadence="episode"``: ``(states, metrics, info, snapshots, episodes)``.
+
+    Jitted segments (``train_segment``) take every seed to the end of its current episode
+    or of the epoch; after each, the host step processes the seeds whose episode ended
+    (``host_update(..., only=ended)``, their episodes' rows and indices), then the next
+    segment starts. The epoch ends when every seed has taken ``steps_per_epoch`` steps;
+    then the state metrics and the evaluation run (:func:`_finish_fn`). ``info`` sums the
+    host steps' counts (``host_calls`` of them, ``episodes_processed`` episodes) and keeps
+    each call's own info under ``calls``, and the epoch's ``segments`` and their
+    ``segment_iterations`` (loop iterations: each segment runs as long as its slowest seed).
+    """
+    alg, config = comp.alg, comp.alg.config
+    spe, n = config.steps_per_epoch, len(loop.seeds)
+    states = loop.states
+    taken = np.zeros(n, np.int64)
+    sums = {name: np.zeros(n, np.float64) for name in (
+        "success", "ended", "ret", "options_ended", "options_reached", "low_loss",
+        "low_updates")}
+    episodes = {name: [[] for _ in range(n)] for name in EPISODE_FIELDS}
+    snaps, calls = [[] for _ in range(n)], []
+    segments = iterations = 0
+    while (taken < spe).any():
+        states, seg = comp.segment(states, loop.keys, epoch)
+        seg = {k: np.asarray(v) for k, v in fetch(seg).items()}
+        if not seg["steps"].any():
+            raise RuntimeError(f"cadence 'episode': the states are not at epoch {epoch}'s "
+                               "steps (env_steps past the epoch's end)")
+        taken += seg["steps"]
+        segments, iterations = segments + 1, iterations + int(seg["steps"].max())
+        ended = seg["ended"].astype(bool)
+        for name in ("options_ended", "options_reached", "low_loss", "low_updates"):
+            sums[name] += seg[name]
+        sums["ended"] += ended
+        sums["success"] += ended & seg["success"].astype(bool)
+        sums["ret"] += np.where(ended, seg["ret"], 0.0)
+        for i in np.flatnonzero(ended):
+            episodes["success"][i].append(int(seg["success"][i]))
+            episodes["length"][i].append(int(seg["length"][i]))
+            episodes["end_step"][i].append(int(seg["end_step"][i]))
+        if not ended.any():
+            continue
+        count = np.asarray(fetch(states.episode.count))
+        with batch_invariant_scope(comp.run.batch_invariant):
+            states, info = alg.host_update(states, epoch, only=ended,
+                                           since=seg["end_step"] - seg["length"],
+                                           key_index=count - 1)
+        states = _global_states(states, comp.mesh, n)
+        info["seeds"] = ended
+        calls.append(info)
+        changed = np.asarray(info.get("changed", np.zeros(n, bool)))
+        if changed.any():
+            current = _snapshots(states)
+            for i in np.flatnonzero(changed):
+                snaps[i].append(current[i])
+    finish = {k: np.asarray(v) for k, v in fetch(comp.finish(states, loop.keys, epoch)).items()}
+    n_ended = sums["ended"]
+    mean = lambda v: np.where(n_ended > 0, v / np.maximum(n_ended, 1), 0.0).astype(  # noqa: E731
+        np.float32)
+    metrics = dict(
+        env_steps=np.asarray(fetch(states.env_steps)), train_success=mean(sums["success"]),
+        episodes_ended=n_ended.astype(np.int32), episode_return=mean(sums["ret"]),
+        n_goals=finish.pop("n_goals"),
+        option_success=(sums["options_reached"] / np.maximum(sums["options_ended"], 1)).astype(
+            np.float32),
+        low_loss=(sums["low_loss"] / np.maximum(sums["low_updates"], 1)).astype(np.float32),
+        **finish)
+    info = _sum_infos(calls, n, epoch)
+    # The batch steps as long as its slowest seed: loop iterations against steps per seed.
+    info.update(segments=segments, segment_iterations=iterations)
+    jax.block_until_ready(states)
+    episodes = {name: [np.asarray(v, np.int32) for v in per_seed]
+                for name, per_seed in episodes.items()}
+    return states, metrics, info, snaps, episodes
+
+
+def _sum_infos(calls: list, n_seeds: int, epoch: int) -> dict:
+    """An epoch's host steps as one ``info``: counts and times summed, ``changed`` and
+    ``updated`` or-ed, each call's own info under ``calls``."""
+    info = dict(epoch=epoch, host_calls=len(calls),
+                episodes_processed=int(sum(np.sum(c["seeds"]) for c in calls)),
+                changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
+                fit_s=0.0, refine_s=0.0, host_s=0.0, calls=calls)
+    info.update({k: 0 for k in _SUMMED_INFO})
+    for c in calls:
+        for k in (*_SUMMED_INFO, "fit_s", "refine_s", "host_s"):
+            info[k] += c.get(k, 0)
+        for k in ("changed", "updated"):
+            info[k] |= np.asarray(c.get(k, np.zeros(n_seeds, bool)), bool)
+    return info
+
+
 def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | None = None,
                  devices=None, batch_invariant: bool | None = None) -> Iterator[EpochOutput]:
     """Run a multi-seed training epoch by epoch, yielding an :class:`EpochOutput` after each.
@@ -399,7 +635,8 @@ def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | Non
         >>> [out.epoch for out in train_epochs(cfg, 2, total_steps=40)]
         [0, 1]
     """
-    alg, _, run, mesh = compiled(config, devices, batch_invariant)
+    comp = compiled(config, devices, batch_invariant)
+    alg, run, mesh = comp.alg, comp.run, comp.mesh
     n_epochs = n_epochs_for(config, total_steps)
     check_divisible(len(seed_list(seeds)), mesh)
     if init_state is None:
@@ -409,8 +646,17 @@ def train_epochs(config, seeds, total_steps: int, *, init_state: LoopState | Non
             raise ValueError(f"init_state: epoch {init_state.epoch} is past the run's "
                              f"{n_epochs} epochs")
         loop = place(init_state, mesh)
+    if comp.segment is not None and jax.process_count() > 1:
+        raise ValueError("cadence: 'episode' runs in one process (jax.distributed is not "
+                         "supported for it yet)")
     for epoch in range(loop.epoch, n_epochs):
         t0 = time.perf_counter()
+        if comp.segment is not None:
+            states, metrics, info, snaps, episodes = _episode_cadence_epoch(comp, loop, epoch)
+            loop = LoopState(states=states, keys=loop.keys, epoch=epoch + 1, seeds=loop.seeds)
+            yield EpochOutput(epoch, n_epochs, loop, metrics, info, snaps,
+                              time.perf_counter() - t0, episodes)
+            continue
         states, metrics = run(loop.states, loop.keys, epoch)
         metrics = fetch(metrics)
         log = metrics.pop("episode_log", None)
@@ -438,7 +684,8 @@ def train_many(config, seeds, total_steps: int, *,
                progress: Callable[[int, int, dict], None] | None = None,
                callback: Callable[[EpochOutput], bool | None] | None = None,
                init_state: LoopState | None = None, devices=None,
-               batch_invariant: bool | None = None) -> TrainResult:
+               batch_invariant: bool | None = None,
+               initial_partitions=None) -> TrainResult:
     """Train ``config``'s algorithm on several seeds at once and collect the curves.
 
     Args:
@@ -461,6 +708,10 @@ def train_many(config, seeds, total_steps: int, *,
             over several devices gives, bit for bit, the results of a one-device run with
             ``batch_invariant=True``; a one-device run with the default gives results that
             differ from those in the last bits (and, through training, beyond).
+        initial_partitions: GARA only: one partition per seed to start from (e.g.
+            ``final_partitions(q_result)`` of a Q-learning run on the same seeds, for the
+            authors' Planning runs, SPEC.md 3.9.3); only the partition is taken, see
+            :func:`init_loop`. Not with ``init_state``.
 
     Returns:
         A :class:`TrainResult` covering the epochs run by this call.
@@ -479,7 +730,11 @@ def train_many(config, seeds, total_steps: int, *,
     comp = compiled(config, devices, batch_invariant)
     alg, invariant = comp.alg, comp.run.batch_invariant
     check_divisible(len(seeds), comp.mesh)
-    loop = (init_loop(config, seeds, devices=comp.mesh, batch_invariant=invariant)
+    if init_state is not None and initial_partitions is not None:
+        raise ValueError("initial_partitions: a run resumed from init_state keeps its own "
+                         "partitions; pass one or the other")
+    loop = (init_loop(config, seeds, devices=comp.mesh, batch_invariant=invariant,
+                      initial_partitions=initial_partitions)
             if init_state is None else init_state)
     start = _snapshots(loop.states)
     snapshots = [[] for _ in seeds] if start is None else [

@@ -363,7 +363,8 @@ def test_results_preset_field_by_field():
         relabel_counts="add",
         # 3.9.3, what both versions do.
         pair_counts="cumulative", records_after_split="kept", relabel_after="update",
-        q_rows_after_split="aliased_at_split", skip_unreachable=False)
+        q_rows_after_split="aliased_at_split", skip_unreachable=False, cadence="episode",
+        max_episode_steps=302)
     assert {name: getattr(res, name) for name in expected} == expected
     assert (res.high.epsilon_decrement, res.high.q_update) == (0.005, "authors")
     assert res.low.buffer_size == 10_000
@@ -390,6 +391,7 @@ def test_results_preset_field_by_field():
     assert (hc.high.epsilon_decrement, hc.low.buffer_size, hc.high.q_update) == (
         0.005, 10_000, "authors")
     assert hc.intrinsic == "every_step"
+    assert hc.max_episode_steps == HandcraftedConfig.reference().max_episode_steps == 302
 
 
 def test_final_preset_has_what_both_versions_do():
@@ -399,6 +401,7 @@ def test_final_preset_has_what_both_versions_do():
         assert (f.pair_counts, f.records_after_split, f.relabel_after, f.q_rows_after_split,
                 f.relabel_counts, f.skip_unreachable) == (
             "cumulative", "kept", "update", "aliased_at_split", "move", False)
+        assert (f.cadence, f.max_episode_steps) == ("episode", 302)
         assert (f.high.q_update, f.forward.shared_sample) == ("authors", "without_replacement")
         assert (f.coverage, f.split_epsilon_boost, f.memory_capacity, f.min_steps) == (
             "final", 1.5, 50_000, 5000)
@@ -409,6 +412,7 @@ def test_final_preset_has_what_both_versions_do():
     assert (ours.pair_counts, ours.records_after_split, ours.relabel_after,
             ours.q_rows_after_split, ours.relabel_counts, ours.coverage) == (
         "memory", "cleared", "split", "copied", "none", "final")
+    assert (ours.cadence, ours.max_episode_steps) == ("epoch", None)
     assert (ours.high.q_update, ours.forward.shared_sample) == ("written_entry",
                                                                 "with_replacement")
 

@@ -129,8 +129,9 @@ def test_console_command_reports_bad_method(tmp_path):
     assert proc.stderr.strip().splitlines() == [
         "gara-jax reproduce: error: --methods: unknown method(s) ['ppo']; "
         "choose from gara, gara_planning, gara_reference, handcrafted, hiro_paper, hiro, "
-        "hiro_paper_standard_target, hiro_paper_full_range, hiro_paper_unclipped_low, "
-        "hiro_paper_full_range_unclipped_low, or all"]
+        "gara_reference_results, gara_reference_results_planning, hiro_paper_standard_target, "
+        "hiro_paper_full_range, hiro_paper_unclipped_low, hiro_paper_full_range_unclipped_low, "
+        "or all"]
 
 
 def test_episodes_csv_is_every_training_episode_and_matches_the_metrics(quick_run):

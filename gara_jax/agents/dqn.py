@@ -232,7 +232,19 @@ def make_dqn(config: DQNConfig, input_dim: int, num_actions: int) -> DQN:
         params = optax.apply_updates(state.params, updates)
         return state.replace(params=params, opt_state=opt_state, updates=state.updates + 1), loss
 
-    def observe(state: DQNState, transition: Transition, key):
+    def observe(state: DQNState, transition: Transition, key, live=None):
+        """Store ``transition``, learn from the replay, decay epsilon: ``(state, info)``.
+
+        ``live`` (a traced bool, or ``None``: always): where false, ``state`` comes back
+        unchanged, at the cost of a live step and without a select over the replay (the row
+        the add writes gets its own old value back), so that seeds that must idle inside a
+        vmapped loop stay as they are.
+        """
+        old = state
+        if live is not None:
+            index = state.buffer.current_index
+            stored = jax.tree.map(lambda e: e[0, index], state.buffer.experience)
+            transition = jax.tree.map(lambda t, o: jnp.where(live, t, o), transition, stored)
         state = state.replace(buffer=buffer.add(state.buffer, transition), steps=state.steps + 1)
         ready = buffer.can_sample(state.buffer)
         state, loss = jax.lax.cond(
@@ -241,7 +253,14 @@ def make_dqn(config: DQNConfig, input_dim: int, num_actions: int) -> DQN:
         target = jax.tree.map(lambda p, t: jnp.where(copy, p, t), state.params, state.target_params)
         epsilon = jnp.maximum(config.epsilon_min, state.epsilon * config.epsilon_decay)
         info = {"loss": loss, "updated": ready}
-        return state.replace(target_params=target, epsilon=epsilon), info
+        state = state.replace(target_params=target, epsilon=epsilon)
+        if live is not None:
+            experience = state.buffer.experience
+            keep = lambda a, b: jnp.where(live, a, b)  # noqa: E731
+            state = jax.tree.map(keep, state.replace(buffer=state.buffer.replace(experience=None)),
+                                 old.replace(buffer=old.buffer.replace(experience=None)))
+            state = state.replace(buffer=state.buffer.replace(experience=experience))
+        return state, info
 
     def relabel_replay(state: DQNState, relabel, where=True) -> DQNState:
         return state.replace(buffer=append_relabelled(state.buffer, relabel, where))

@@ -160,9 +160,11 @@ def init_memory(capacity: int, state_dim: int) -> HighMemory:
 
 
 def push_memory(memory: HighMemory, start, end, target_lo, target_hi, reward, length, step,
-                where=True, episode=0, data=True) -> HighMemory:
+                where=True, episode=0, data=True, live=None) -> HighMemory:
     """Store one row, only ``where`` it is true (else the scratch row is written, so it
     costs the same either way inside a vmapped scan); the oldest row is overwritten once full.
+    ``live`` (``None``: always): where false, nothing changes, not even the scratch row (the
+    written row gets its own old value back), for seeds idling inside a vmapped loop.
 
     Example:
         >>> import jax.numpy as jnp
@@ -174,8 +176,13 @@ def push_memory(memory: HighMemory, start, end, target_lo, target_hi, reward, le
         ([2.0, 1.0], 2, 1)
     """
     capacity = memory.capacity
+    if live is not None:
+        where = where & live
     i = jnp.where(where, memory.ptr, capacity)
     put = lambda rows, value: rows.at[i].set(jnp.asarray(value, rows.dtype))
+    if live is not None:
+        put = lambda rows, value: rows.at[i].set(  # noqa: E731
+            jnp.where(live, jnp.asarray(value, rows.dtype), rows[i]))
     return memory.replace(
         start=put(memory.start, start),
         end=put(memory.end, end),

@@ -17,6 +17,12 @@ CONTRACT (agreed between the engineers building GARA/Handcrafted and HIRO; keep 
   states batched over seeds (GARA's refinement); ``None`` for algorithms without one.
 - ``greedy_rollout(state, key) -> dict``: optional, one evaluation episode step by step (for
   diagnostics; GARA and Handcrafted have it).
+- ``train_segment(state, key, epoch) -> (state, segment)`` and ``state_metrics(state) ->
+  dict``: optional (GARA), what the driver runs for ``cadence="episode"``: the steps of epoch
+  ``epoch`` up to the end of the seed's current episode or of the epoch (``key``: the epoch's
+  training key, as ``train_epoch`` gets it), and the per-seed metrics that ``train_epoch``
+  reads off the state (``n_goals``, the epsilons); :func:`gara_jax.train.train_epochs`
+  assembles the contract's epoch metrics from the segments.
 
 Every config is a frozen dataclass with SPEC.md defaults, validated in ``__post_init__``
 (``ValueError`` naming the field), JSON-serialisable via ``dataclasses.asdict``, with at least
@@ -41,6 +47,8 @@ class Algorithm(NamedTuple):
     evaluate: Callable
     host_update: Callable | None = None
     greedy_rollout: Callable | None = None
+    train_segment: Callable | None = None
+    state_metrics: Callable | None = None
 
 
 def epoch_metrics(stats, env_steps) -> dict:

@@ -70,6 +70,12 @@ PAIR_COUNTS = ("memory", "cumulative")
 RECORDS_AFTER_SPLIT = ("cleared", "kept")
 RELABEL_COUNTS = ("none", "move", "add")
 RELABEL_AFTER = ("split", "update")
+#: When GARA's host step (trigger, forward model, analysis) runs: after every
+#: ``steps_per_epoch`` steps, or after every episode of every seed (SPEC.md section 3.9.3).
+CADENCES = ("epoch", "episode")
+#: The reference's episodes run at most 302 steps, not the environment's 300 (its loop's check;
+#: SPEC.md sections 3.1 and 3.9.3, both versions): the presets' ``max_episode_steps``.
+REFERENCE_EPISODE_STEPS = 302
 #: The reference versions :meth:`GaraConfig.reference` and :meth:`HandcraftedConfig.reference`
 #: offer (SPEC.md section 3: the authors' final maze version; section 3.9: the version that
 #: made their result files).
@@ -100,6 +106,9 @@ class HandcraftedConfig:
         k: environment steps per option (the high level decides every ``k`` steps).
         steps_per_epoch: environment steps per jitted training epoch.
         eval_episodes: greedy evaluation episodes per seed after every epoch.
+        max_episode_steps: if not ``None``, training and evaluation episodes are truncated
+            after this many steps instead of the environment's own limit (300 on the
+            U-maze; SPEC.md 3.1 and 3.9.3 say the reference's loop lets an episode run 302).
         low: the low-level DQN's hyper-parameters.
         high: the high level's hyper-parameters.
         planning: choose goals with the shortest-path planner instead of the Q-table.
@@ -185,6 +194,7 @@ class HandcraftedConfig:
     k: int = 5
     steps_per_epoch: int = 3000
     eval_episodes: int = 10
+    max_episode_steps: int | None = None
     low: DQNConfig = LOW_DEFAULT
     high: hl.HighLevelConfig = hl.HighLevelConfig()
     planning: bool = False
@@ -222,7 +232,9 @@ class HandcraftedConfig:
         - the high level of 3.3: epsilon decrement 0.0005, lowest-index greedy ties
           (``tie_break="lowest"``), the hindsight update into the reached goal's entry with
           the difference taken against the chosen target's (``q_update="authors"``, 3.3 and
-          3.9.3).
+          3.9.3);
+        - episodes of at most 302 steps, training and evaluation (``max_episode_steps``,
+          3.1 and 3.9.3: the reference's loop check; the environment's own limit is 300).
 
         ``version="results"``, the version that made the authors' result files (3.9.2): the
         same, with the high-level epsilon decrement 0.005 (3.3, 3.9.2) and a low-level replay
@@ -243,7 +255,7 @@ class HandcraftedConfig:
             low = dataclasses.replace(low, buffer_size=10_000)
         fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
                       reached_at_start=False, stall_penalty=None, self_target="always",
-                      low=low, high=high)
+                      max_episode_steps=REFERENCE_EPISODE_STEPS, low=low, high=high)
         fields.update(overrides)
         return cls(**fields)
 
@@ -281,7 +293,8 @@ class GaraConfig(HandcraftedConfig):
     counts recomputed from the memory (``pair_counts="memory"``), MSE records cleared after a
     split, the relabel only after a split (``relabel_after="split"``), Q rows copied
     (``q_rows_after_split="copied"``), the Q update's difference against the written entry
-    (``high.q_update="written_entry"``), forward-model samples drawn with replacement.
+    (``high.q_update="written_entry"``), forward-model samples drawn with replacement, the
+    host step after every 3,000-step epoch, not after every episode (``cadence="epoch"``).
 
     Attributes (beyond :class:`HandcraftedConfig`'s):
         max_goals: partition capacity; a split that would exceed it is skipped and counted.
@@ -306,8 +319,9 @@ class GaraConfig(HandcraftedConfig):
             ``forward.batch_size`` of the pair's rows and records the MSE on a fresh sample;
             from the ``shared_min_records``-th record on, the pair is analysed when its latest
             MSE is less than ``forward.stable_decrease`` above the previous one. The reference
-            does this after every episode; here it runs between epochs, with one update per
-            episode of the epoch in which the pair was chosen.
+            does this after every episode (``cadence="episode"``); with ``cadence="epoch"`` it
+            runs between epochs, with one update per episode of the epoch in which the pair
+            was chosen.
         shared_min_records: see ``forward_model="shared"``.
         min_steps: experience a pair needs before it is analysed (the summed ``length`` of
             its memory rows: environment steps of options, or windows plus option starts).
@@ -410,6 +424,23 @@ class GaraConfig(HandcraftedConfig):
             (this project's first reading of 3.6). ``"update"`` (the reference, both versions,
             SPEC.md section 3.9.3): after every analysis that changed the verdicts, a split or
             a whole ``G_s`` found reaching (no split).
+        cadence: when the host step (trigger, shared forward-model step, stability test,
+            analysis, split) runs (SPEC.md sections 3.5 and 3.9.3). ``"epoch"``: after every
+            ``steps_per_epoch`` steps of all seeds, on what the epoch explored (pairs chosen
+            in it; with ``forward_model="shared"``, one update per episode of the epoch in
+            which the pair was chosen, and the stability test once, at the end). ``"episode"``
+            (the reference, both versions): after every episode of every seed, on that
+            episode alone (the pairs chosen in it; one shared-model update per triggered
+            pair, then the stability test and any analysis), before the seed's next episode
+            starts. The driver (:func:`gara_jax.train.train_epochs`) then runs each epoch as
+            jitted segments, each taking every seed to the end of its current episode (or of
+            the epoch: an episode may straddle two epochs, and is processed when it ends); a
+            seed whose episode ended waits, unchanged, for the others, so that its results do
+            not depend on theirs. Per-step random keys are the ``"epoch"`` cadence's (step
+            ``t`` of epoch ``e`` draws the same key), the host step's keys are per episode.
+            Metrics, evaluations and checkpoints stay per ``steps_per_epoch`` block; an
+            epoch's ``n_goals`` is then the partition at the epoch's end, after its host
+            steps (with ``"epoch"``, before the epoch's host step).
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -450,6 +481,7 @@ class GaraConfig(HandcraftedConfig):
     records_after_split: str = "cleared"
     relabel_counts: str = "none"
     relabel_after: str = "split"
+    cadence: str = "epoch"
 
     def __post_init__(self):
         super().__post_init__()
@@ -488,6 +520,7 @@ class GaraConfig(HandcraftedConfig):
         _one_of(self, "records_after_split", RECORDS_AFTER_SPLIT)
         _one_of(self, "relabel_counts", RELABEL_COUNTS)
         _one_of(self, "relabel_after", RELABEL_AFTER)
+        _one_of(self, "cadence", CADENCES)
         if self.pair_counts == "cumulative" and self.memory != "windows":
             raise ValueError("pair_counts: 'cumulative' counts the reference's sliding windows "
                              f"and needs memory='windows', got memory={self.memory!r}")
@@ -505,6 +538,8 @@ class GaraConfig(HandcraftedConfig):
         - high-level memory: sliding windows (``memory="windows"``, 3.4), 50,000 rows
           (``memory_capacity``, 3.4); option-end rows are not forward-model data (the
           reference's swapped-fields bug, 3.4);
+        - cadence: the trigger, the shared forward-model step, the stability test and any
+          analysis after every episode of every seed (``cadence="episode"``, 3.9.3);
         - trigger: ``min_steps=5000`` (3.5) on cumulative counts keyed by goal index, +1 per
           window and +1 per decision once the pair exists (``pair_counts="cumulative"``,
           3.9.3); pairs marked unreachable analysed again by both high levels
@@ -531,13 +566,14 @@ class GaraConfig(HandcraftedConfig):
           target copy every 20 steps);
         - high level: epsilon decrement 0.0005, lowest-index greedy ties, the update written
           into the reached goal's entry with its difference taken against the chosen
-          target's (``high.q_update="authors"``, 3.3, 3.9.3).
+          target's (``high.q_update="authors"``, 3.3, 3.9.3);
+        - episodes of at most 302 steps, training and evaluation (``max_episode_steps``,
+          3.1 and 3.9.3).
 
-        Known differences from the authors' code: the refinement runs between 3,000-step
-        epochs, not after every episode (3.9.3; ``steps_per_epoch``, not an option yet); the
-        memory stores target boxes, not indices, so windows towards a goal split since are
-        no pair's data; a split clears the reachability marks towards every piece, index
-        ``s`` included; widths are compared with 0, not 1e-5 (3.6).
+        Known differences from the authors' code: the memory stores target boxes, not
+        indices, so windows towards a goal split since are no pair's data; a split clears
+        the reachability marks towards every piece, index ``s`` included; widths are
+        compared with 0, not 1e-5 (3.6).
 
         ``version="results"``, the version that made the authors' result files (SPEC.md
         3.9), is the final one with:
@@ -554,8 +590,9 @@ class GaraConfig(HandcraftedConfig):
         - relabel count inflation: +1 on the pair count of every window of the memory
           instead of the final version's move (``relabel_counts="add"``, 3.9.2);
         - everything else as the final preset, including what both versions do (3.9.3).
-          Not yet built: the per-episode cadence, Planning started from the Q-learning
-          run's final partition.
+          The authors' Planning runs started from the Q-learning run's final partition
+          (3.9.3): that is not a field of the config but of the run, the
+          ``initial_partitions`` of :func:`gara_jax.train.train_many`.
 
         ``planning`` chooses the planner; ``overrides`` replace fields.
 
@@ -581,7 +618,8 @@ class GaraConfig(HandcraftedConfig):
             self_target="always", coverage="final",
             # What both versions do (SPEC.md 3.9.3); the final version's relabel (3.9.2).
             pair_counts="cumulative", records_after_split="kept", relabel_after="update",
-            q_rows_after_split="aliased_at_split", relabel_counts="move")
+            q_rows_after_split="aliased_at_split", relabel_counts="move", cadence="episode",
+            max_episode_steps=REFERENCE_EPISODE_STEPS)
         if version == "results":
             # The results version's own (SPEC.md 3.9.2).
             fields.update(coverage="results", split_epsilon_boost=1.0, memory_capacity=10_000,
@@ -615,6 +653,8 @@ def _validate_common(cfg):
     if cfg.env not in envs.ENV_NAMES:
         raise ValueError(f"env: unknown environment {cfg.env!r}; valid: {envs.ENV_NAMES}")
     _positive_int(cfg, "k", "steps_per_epoch", "eval_episodes", "max_goals")
+    if cfg.max_episode_steps is not None:
+        _positive_int(cfg, "max_episode_steps")
     if not isinstance(cfg.low, DQNConfig):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
     if not isinstance(cfg.high, hl.HighLevelConfig):
@@ -834,7 +874,10 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     from gara_jax import partition as part
 
     refining = isinstance(config, GaraConfig)
-    env, env_params = envs.make(config.env)
+    env_overrides = {}
+    if config.max_episode_steps is not None:
+        env_overrides["max_steps"] = int(config.max_episode_steps)
+    env, env_params = envs.make(config.env, **env_overrides)
     max_steps = int(env_params.max_steps)
     dim = 4
     G = config.max_goals
@@ -942,7 +985,10 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
 
     # -- one environment step --------------------------------------------------------------
 
-    def step(s: GaraState, key):
+    def step(s: GaraState, key, live=None):
+        """One environment step; with ``live`` (a traced bool) false, ``s`` comes back
+        unchanged (see :func:`train_segment`)."""
+        s_old = s
         k_high, k_act, k_env, k_dqn = jax.random.split(key, 4)
         partition, option, high, episode = s.partition, s.option, s.high, s.episode
 
@@ -996,7 +1042,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         transition = Transition(x, action, intrinsic + reward,
                                 jnp.concatenate([next_s, goal_in]),
                                 terminated | (first_entry & config.terminal_on_entry))
-        dqn_state, dqn_info = dqn.observe(s.dqn, transition, k_dqn)
+        dqn_state, dqn_info = dqn.observe(s.dqn, transition, k_dqn, live)
 
         # 4. Option bookkeeping; learning at option end.
         option = option.replace(steps=option.steps + 1, env_reward=option.env_reward + reward,
@@ -1032,21 +1078,24 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
                     (store & ~option.stale).astype(jnp.int32))
             memory = fm.push_memory(memory, window_start, next_s, option.target_lo,
                                     option.target_hi, reward, 1, env_steps, where=store,
-                                    episode=episode.count, data=True)
+                                    episode=episode.count, data=True, live=live)
             # Option starts count towards the trigger (not forward-model data).
             memory = fm.push_memory(memory, option.start_obs, option.start_obs,
                                     option.target_lo, option.target_hi, 0.0, 1, env_steps,
-                                    where=deciding, episode=episode.count, data=False)
+                                    where=deciding, episode=episode.count, data=False,
+                                    live=live)
         elif refining:
             memory = fm.push_memory(memory, option.start_obs, next_s, option.target_lo,
                                     option.target_hi, option.env_reward, option.steps,
-                                    env_steps, where=ended, episode=episode.count)
+                                    env_steps, where=ended, episode=episode.count,
+                                    live=live)
             if config.hindsight_memory:
                 # Also store the option as one towards the goal it actually ended in.
                 memory = fm.push_memory(
                     memory, option.start_obs, next_s, partition.lo[next_goal],
                     partition.hi[next_goal], option.env_reward, option.steps, env_steps,
-                    where=ended & (next_goal != option.target), episode=episode.count)
+                    where=ended & (next_goal != option.target), episode=episode.count,
+                    live=live)
         option = option.replace(steps=jnp.where(ended, 0, option.steps))
 
         ret = episode.ret + reward
@@ -1073,6 +1122,12 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         s = s.replace(obs=obs, env_state=env_state, dqn=dqn_state, high=high, option=option,
                       episode=episode, memory=memory, env_steps=env_steps,
                       pair_count=pair_count)
+        if live is not None:
+            # The replay and the memory kept themselves (their writes are no-ops); the rest
+            # is small: select it.
+            keep = lambda a, b: jnp.where(live, a, b)  # noqa: E731
+            small = lambda st: st.replace(dqn=None, memory=None)  # noqa: E731
+            s = jax.tree.map(keep, small(s), small(s_old)).replace(dqn=s.dqn, memory=s.memory)
         return s, stats
 
     # -- one epoch ---------------------------------------------------------------------------
@@ -1089,6 +1144,66 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             low_epsilon=state.dqn.epsilon,
             high_epsilon=state.high.epsilon)
         return state, metrics
+
+    def train_segment(state: GaraState, key, epoch, axis_name=None):
+        """Steps of epoch ``epoch`` until this seed's episode ends or the epoch does
+        (``cadence="episode"``): ``(state, segment)``.
+
+        ``key`` is the epoch's training key, as :func:`train_epoch` gets it: step ``t`` of the
+        epoch (``state.env_steps - epoch * steps_per_epoch``) uses the ``t``-th of its
+        ``steps_per_epoch`` keys, so the steps draw what they draw in an ``"epoch"`` run.
+        One ``lax.while_loop``. Vmapped over seeds with ``axis_name`` (the vmap's), the loop
+        runs until every seed is done (a ``psum`` over the seeds), and a seed that is done
+        keeps stepping *idle*: its step is computed and thrown away, so it does not move,
+        learn or draw, and the replay and the memory, the large arrays, are not copied
+        (their writes put back what was there). Without ``axis_name``, a vmapped call still
+        gives the same results but selects every array at every step.
+        ``segment`` holds ``steps`` (taken), ``ended`` (the episode ended on the last one),
+        that episode's ``success``, ``length``, ``ret`` (return) and ``end_step``, and the
+        sums the epoch metrics need (``options_ended``, ``options_reached``, ``low_loss``,
+        ``low_updates``).
+        """
+        spe = config.steps_per_epoch
+        keys = jax.random.split(key, spe)
+        first = jnp.asarray(epoch, jnp.int32) * spe
+        zero = dict(steps=jnp.int32(0), ended=jnp.asarray(False), success=jnp.asarray(False),
+                    length=jnp.int32(0), ret=jnp.float32(0.0), end_step=jnp.int32(0),
+                    options_ended=jnp.int32(0), options_reached=jnp.int32(0),
+                    low_loss=jnp.float32(0.0), low_updates=jnp.int32(0))
+
+        def running(s, seg):
+            return ~seg["ended"] & (s.env_steps < first + spe)
+
+        def cond(carry):
+            go = running(*carry)
+            if axis_name is not None:
+                go = jax.lax.psum(go.astype(jnp.int32), axis_name) > 0
+            return go
+
+        def body(carry):
+            s, seg = carry
+            live = running(s, seg)
+            t = jnp.clip(s.env_steps - first, 0, spe - 1)
+            s, st = step(s, keys[t], live if axis_name is not None else None)
+            new = dict(
+                steps=seg["steps"] + 1, ended=st["episode_ended"],
+                success=st["episode_success"], length=st["episode_length"].astype(jnp.int32),
+                ret=st["episode_return"].astype(jnp.float32),
+                end_step=st["episode_end_step"].astype(jnp.int32),
+                options_ended=seg["options_ended"] + st["options_ended"],
+                options_reached=seg["options_reached"] + st["options_reached"],
+                low_loss=seg["low_loss"] + st["low_loss"],
+                low_updates=seg["low_updates"] + st["low_updates"])
+            if axis_name is not None:
+                new = jax.tree.map(lambda a, b: jnp.where(live, a, b), new, seg)
+            return s, new
+
+        return jax.lax.while_loop(cond, body, (state, zero))
+
+    def state_metrics(state: GaraState):
+        """The per-seed metrics read off the state at an epoch's end (``cadence="episode"``)."""
+        return dict(n_goals=state.partition.count.astype(jnp.int32),
+                    low_epsilon=state.dqn.epsilon, high_epsilon=state.high.epsilon)
 
     # -- greedy evaluation -------------------------------------------------------------------
 
@@ -1160,6 +1275,8 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         host_update = make_host_update(config, locate, exit_goals, dqn, forward)
     return Algorithm(name=algorithm_name(config), config=config, init=init,
                      train_epoch=train_epoch, evaluate=evaluate, host_update=host_update,
-                     greedy_rollout=greedy_rollout)
+                     greedy_rollout=greedy_rollout,
+                     train_segment=train_segment if refining else None,
+                     state_metrics=state_metrics if refining else None)
 
 

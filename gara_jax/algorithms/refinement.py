@@ -1,6 +1,9 @@
 """GARA's host step between epochs: when a pair is analysed, how, and what a split changes.
 
-Read top to bottom, for all seeds at once (the states are batched over seeds):
+It runs after every epoch (``cadence="epoch"``) or, for the seeds whose episode just ended,
+after every episode (``cadence="episode"``, the reference; the driver stops each seed at its
+episode's end, see :func:`gara_jax.train.train_epochs`); "the last epoch" below is then that
+episode. Read top to bottom, for all seeds at once (the states are batched over seeds):
 
 1. **Trigger** (SPEC.md section 3.5). A pair ``(G_s, G_d)``, ``s != d``, explored during the
    last epoch, not known reachable, not blocked (a split that did not fit), not marked
@@ -69,13 +72,13 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
 
     @SeedJit
     @jax.vmap
-    def memory_goals(state):
-        """Goal indices of every memory row and the per-pair experience (device side)."""
+    def memory_goals(state, since):
+        """Goal indices of every memory row and the per-pair experience (device side); a pair
+        is recent if a row of it was stored after env step ``since``."""
         mem, partition = state.memory, state.partition
         start = locate(partition, mem.start)
         target = fm.match_boxes(mem.target_lo, mem.target_hi, partition.lo, partition.hi,
                                 partition.count)
-        since = state.env_steps - config.steps_per_epoch
         steps, recent = fm.pair_experience(start, target, mem, since, G)
         return start, target, steps, recent
 
@@ -112,20 +115,35 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
 
     @SeedJit
     @jax.vmap
-    def replan(state):
-        """Exact planner distances on the refined partitions."""
+    def replan(state, where):
+        """Exact planner distances on the refined partitions (of the seeds ``where``)."""
         high = state.high
         dist = hl.shortest_distances(high.succeeded, exit_goals(high, state.partition),
                                      state.partition.count)
-        return high.replace(dist=dist)
+        return high.replace(dist=jnp.where(where, dist, high.dist))
 
-    def seed_keys(host_key, epoch, salt):
+    def seed_keys(host_key, counter, salt):
         keys = jax.random.wrap_key_data(jnp.asarray(host_key))
-        return jax.vmap(lambda k: jax.random.fold_in(jax.random.fold_in(k, epoch), salt))(keys)
+        counter = jnp.broadcast_to(jnp.asarray(counter, jnp.uint32), keys.shape)
+        return jax.vmap(lambda k, c: jax.random.fold_in(jax.random.fold_in(k, c), salt))(
+            keys, counter)
 
-    def host_update(states, epoch: int):
+    def host_update(states, epoch: int, *, only=None, since=None, key_index=None):
+        """The host step after epoch ``epoch`` (``cadence="epoch"``: what the last
+        ``steps_per_epoch`` steps explored), or, with ``only`` (``bool [n_seeds]``), after
+        the episode each seed ``only`` just finished (``cadence="episode"``): ``since``
+        (``[n_seeds]``) the env step at which that episode started (rows stored after it are
+        the episode's), ``key_index`` (``[n_seeds]``) the episode's index, which seeds the
+        step's random keys instead of the epoch. The other seeds are left exactly as they are.
+        """
         t0 = time.perf_counter()
-        start_goal, target_goal, steps, recent = memory_goals(states)
+        n_seeds = len(states.host_key)
+        if since is None:
+            since = np.asarray(jax.device_get(states.env_steps)) - config.steps_per_epoch
+        since = np.asarray(since, np.int64).reshape(n_seeds)
+        counter = epoch if key_index is None else np.asarray(key_index).reshape(n_seeds)
+        start_goal, target_goal, steps, recent = memory_goals(
+            states, put_like(since, states.env_steps))
         if cumulative:
             steps = states.pair_count  # the reference's counts (SPEC.md 3.9.3)
         steps, recent = jax.device_get((steps, recent))
@@ -135,7 +153,6 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             reachable=states.reachable, unreachable=states.unreachable, blocked=states.blocked,
             host_key=states.host_key, records=states.forward.records,
             mse_last=states.forward.mse_last, mse_prev=states.forward.mse_prev))
-        n_seeds = len(host["count"])
         info = dict(epoch=epoch, triggered=0, stable=0, analysed=0, splits=0, reaches=0,
                     no_reach=0, capacity_skips=0, fit_updates=0,
                     changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
@@ -146,6 +163,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         if config.skip_unreachable:
             ok &= ~host["unreachable"]
         ok[:, np.arange(G), np.arange(G)] = False
+        if only is not None:
+            ok &= np.asarray(only, bool).reshape(n_seeds)[:, None, None]
         live_goals = np.arange(G)[None, :] < host["count"][:, None]
         ok &= live_goals[:, :, None] & live_goals[:, None, :]
         info["triggered"] = int(ok.sum())
@@ -155,7 +174,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         if shared:
             ready, new_forward, info["fit_updates"] = _shared_step(
                 config, states, host, ok, shared_updates, start_goal, target_goal,
-                seed_keys(host["host_key"], epoch, 1))
+                seed_keys(host["host_key"], counter, 1), since)
             states = states.replace(forward=new_forward)
             jobs = _choose_jobs(config, ready, steps)
             seeds_idx = np.asarray([i for i, _, _ in jobs], int)
@@ -165,7 +184,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             jobs = _choose_jobs(config, ok, steps)
             if jobs:
                 stable, fit_params = _fit_per_job(config, forward, states, jobs, start_goal,
-                                                  target_goal, host["host_key"], epoch)
+                                                  target_goal, host["host_key"], counter)
                 keep = np.flatnonzero(stable)
                 jobs = [jobs[j] for j in keep]
                 job_params = jax.tree.map(lambda p: p[keep], fit_params)
@@ -261,7 +280,11 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             states = states.replace(pair_count=relabel_counts(
                 states.pair_count, states.memory, old_partition, states.partition, relabelled))
         if config.planning:
-            states = states.replace(high=replan(states))
+            # After an epoch: every seed. After episodes: the seeds analysed (so that no seed's
+            # planner depends on what happened to the others).
+            where = np.ones(n_seeds, bool) if only is None else np.isin(
+                np.arange(n_seeds), list(seeds))
+            states = states.replace(high=replan(states, put_like(where, states.option.stale)))
         info["host_s"] = time.perf_counter() - t0
         return states, info
 
@@ -327,7 +350,9 @@ def _choose_jobs(config, candidates, steps):
 
 
 def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_key, epoch):
-    """Fresh forward models for ``jobs``, trained in one batched call: ``(stable, params)``."""
+    """Fresh forward models for ``jobs``, trained in one batched call: ``(stable, params)``.
+
+    ``epoch``: the epoch, or per seed the episode index, that seeds the jobs' keys."""
     G = config.max_goals
     # Only the memory rows of the seeds with a job leave the devices.
     job_seeds = sorted({i for i, _, _ in jobs})
@@ -351,9 +376,10 @@ def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_ke
         padded_jobs - n_jobs)
     x, y, mask = fm.pad_jobs(datasets, config.forward.batch_size, min_rows=1024,
                              max_rows=config.memory_capacity)
-    # Job keys depend only on the job's own seed, the epoch and the pair: reproducible.
+    # Job keys depend only on the job's own seed, the epoch (episode) and the pair.
     keys = jax.random.wrap_key_data(jnp.asarray(host_key))
-    job_keys = [jax.random.fold_in(jax.random.fold_in(keys[i], epoch), s_idx * G + d_idx)
+    counter = lambda i: epoch if np.ndim(epoch) == 0 else int(epoch[i])  # noqa: E731
+    job_keys = [jax.random.fold_in(jax.random.fold_in(keys[i], counter(i)), s_idx * G + d_idx)
                 for i, s_idx, d_idx in jobs]
     job_keys = jnp.stack(job_keys + [job_keys[0]] * (padded_jobs - n_jobs))
     k_init = jax.vmap(lambda k: jax.random.fold_in(k, 0))(job_keys)
@@ -362,10 +388,12 @@ def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_ke
     return np.asarray(fit.stable)[:n_jobs], jax.tree.map(lambda p: p[:n_jobs], fit.params)
 
 
-def _shared_step(config, states, host, ok, shared_updates, start_goal, target_goal, keys):
+def _shared_step(config, states, host, ok, shared_updates, start_goal, target_goal, keys,
+                 since):
     """The reference's incremental fits: ``(ready [S, G, G], new SharedForward, n_updates)``.
 
-    Every triggered pair gets one update per episode of the last epoch in which it was chosen
+    Every triggered pair gets one update per episode since env step ``since [S]`` (the last
+    epoch, or the episode just finished) in which it was chosen
     (its option-start rows carry the episode index), in episode order; each update draws its
     rows as ``forward.shared_sample`` says (uniformly with replacement, or, as the reference,
     at most ``batch_size`` distinct rows). A pair is ready when it has
@@ -379,11 +407,11 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
     if len(active) == 0:
         return np.zeros_like(ok), states.forward, 0
     take = jnp.asarray(active)
-    mem, start_np, target_np, env_steps = jax.device_get(jax.tree.map(
+    mem, start_np, target_np = jax.device_get(jax.tree.map(
         lambda a: a[take], (states.memory.replace(start=None, end=None, target_lo=None,
                                                   target_hi=None, reward=None),
-                            start_goal, target_goal, states.env_steps)))
-    since = np.asarray(env_steps) - config.steps_per_epoch
+                            start_goal, target_goal)))
+    since = np.asarray(since)[active]
     updates, pair_ids = [], []
     for r, i in enumerate(active):
         filled = (np.arange(len(start_np[r])) < mem.size[r]) & (start_np[r] >= 0) & (

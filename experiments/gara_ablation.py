@@ -40,7 +40,11 @@ EPISODE_WINDOW = (300, 400)
 
 
 def _variants():
-    """``name -> (description, config)``: the ablation, built lazily (imports JAX)."""
+    """``name -> (description, config[, source])``: the ablation, built lazily (imports JAX).
+
+    A third item names the variant whose final partitions (same seeds) the variant starts
+    from (``initial_partitions`` of :func:`gara_jax.train.train_many`); that variant runs
+    first if ``--out`` does not hold it for the same seeds and steps."""
     from gara_jax.agents.dqn import DQNConfig
     from gara_jax.agents.high_level import HighLevelConfig
     from gara_jax.algorithms import GaraConfig, HandcraftedConfig
@@ -60,7 +64,36 @@ def _variants():
         reached_at_start=False, stall_penalty=None,
         low=DQNConfig(loss="all_actions", buffer_size=10_000, target_update_every=200),
         high=HighLevelConfig(epsilon_decrement=0.005, tie_break="random"))
+    res = GaraConfig.reference(version="results")
     return {
+        # The results version (SPEC.md 3.9), with each of its 3.9 mechanisms reverted in turn.
+        "results": ("GaraConfig.reference(version='results'): the version that made the "
+                    "authors' result files (SPEC.md 3.9)", res),
+        "results-coverage_final": ("the final coverage rule: an empty intersection in any "
+                                   "dimension gives c1 = c2 = 0 (3.6)",
+                                   rep(res, coverage="final")),
+        "results-epoch_cadence": ("trigger, forward model and analysis after every 3,000-step "
+                                  "epoch, not after every episode",
+                                  rep(res, cadence="epoch")),
+        "results-memory_counts": ("pair counts recomputed from the memory each host step, not "
+                                  "cumulative (so no relabel inflation either)",
+                                  rep(res, pair_counts="memory", relabel_counts="none")),
+        "results-no_count_inflation": ("the final version's relabel count move (-1 then +1), "
+                                       "not +1", rep(res, relabel_counts="move")),
+        "results-q_update_written_entry": ("the Q update's difference against the written "
+                                           "(reached) entry, not the chosen target's",
+                                           high(res, q_update="written_entry")),
+        "results-q_rows_copied": ("Q rows copied at a split, not aliased",
+                                  rep(res, q_rows_after_split="copied")),
+        "results-300_step_episodes": ("episodes of at most 300 steps (the environment's "
+                                      "limit), not 302", rep(res, max_episode_steps=None)),
+        "results_min_steps_5000": ("the results version with min_steps 5,000 (SPEC.md leaves "
+                                   "it open: 1,000 or 5,000)", rep(res, min_steps=5000)),
+        "results_planning_from_q": ("the results version's Planning, each seed started from "
+                                    "the same seed's final `results` partition (the authors' "
+                                    "runs, SPEC.md 3.9.3)", rep(res, planning=True), "results"),
+        "results_planning": ("the results version's Planning from the two initial goals "
+                             "(Planning-from-Q reverted)", rep(res, planning=True)),
         "previous_default": ("GaraConfig() before SPEC revision 2 (session 4)", previous),
         "reference": ("GaraConfig.reference(): the authors' final maze version", ref),
         # The reference with one of its mechanisms reverted.
@@ -264,7 +297,10 @@ def summarize_run(result, total_steps: int) -> dict:
         "greedy_end": R.ci_summary(m["eval_success"][:, -1]),
         "greedy_last10": R.ci_summary(greedy_last),
         # Per seed, in seed order, for paired comparisons between variants.
-        "per_seed": {"train_last30k": np.round(np.asarray(last30k, float), 4).tolist(),
+        "per_seed": {"train_ep300_400": np.round(np.asarray(
+                         R.per_seed_episode_success(ep, *EPISODE_WINDOW), float), 4).tolist(),
+                     "train_last30k": np.round(np.asarray(last30k, float), 4).tolist(),
+                     "goals_end": m["n_goals"][:, -1].astype(int).tolist(),
                      "greedy_end": np.round(m["eval_success"][:, -1].astype(float), 4).tolist(),
                      "greedy_last10": np.round(greedy_last.astype(float), 4).tolist()},
         "goals_end": float(np.mean(m["n_goals"][:, -1])),
@@ -277,6 +313,40 @@ def summarize_run(result, total_steps: int) -> dict:
         "wall_s": round(result.wall_time_s, 1),
         "host_s": round(result.host_time_s, 1),
     }
+
+
+def with_sources(names, variants) -> list:
+    """``names`` with each variant's source (the variant whose final partitions it starts
+    from) placed before it, once.
+
+    Example:
+        >>> with_sources(["b", "a"], {"a": ("", None), "b": ("", None, "a")})
+        ['a', 'b']
+    """
+    ordered = []
+    for name in names:
+        source = _source(variants[name])
+        if source is not None and source not in ordered:
+            ordered.append(source)
+        if name not in ordered:
+            ordered.append(name)
+    return ordered
+
+
+def _source(variant) -> str | None:
+    """The variant whose final partitions ``variant`` starts from, or ``None``."""
+    return variant[2] if len(variant) > 2 else None
+
+
+def _final_boxes(result) -> list | None:
+    """Each seed's final partition as ``[lo, hi]`` lists (GARA), what a variant started from
+    it takes; ``None`` for an algorithm without a partition to refine."""
+    from gara_jax.algorithms import GaraConfig
+    from gara_jax.train import final_partitions
+
+    if not isinstance(result.config, GaraConfig):
+        return None
+    return [[np.asarray(b).tolist() for b in p.boxes()] for p in final_partitions(result)]
 
 
 def _fmt(s: dict) -> str:
@@ -335,8 +405,8 @@ def main(argv=None) -> int:
     args = parse_args(argv)
     variants = _variants()
     if args.list:
-        for name, (desc, _) in variants.items():
-            print(f"{name:28s} {desc}")
+        for name, (desc, *_) in variants.items():
+            print(f"{name:30s} {desc}")
         return 0
     names = list(variants) if args.variants == "all" else [
         v.strip() for v in args.variants.split(",") if v.strip()]
@@ -344,6 +414,7 @@ def main(argv=None) -> int:
     if unknown:
         print(f"error: --variants: unknown {unknown}; see --list", file=sys.stderr)
         return 2
+    names = with_sources(names, variants)
 
     from gara_jax.results import write_json
     from gara_jax.train import train_many
@@ -353,9 +424,16 @@ def main(argv=None) -> int:
     rows = done.get("variants", {})
     for name in names:
         old = rows.get(name)
-        if old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == args.steps:
+        sources = {_source(variants[n]) for n in names}
+        if (old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == args.steps
+                and (name not in sources or old.get("final_partitions"))):
             continue
-        desc, config = variants[name]
+        desc, config = variants[name][:2]
+        source = _source(variants[name])
+        initial = None
+        if source is not None:
+            initial = [(np.asarray(lo), np.asarray(hi))
+                       for lo, hi in rows[source]["final_partitions"]]
         bar = None
         if not args.no_progress:
             from tqdm.auto import tqdm
@@ -372,12 +450,14 @@ def main(argv=None) -> int:
                 bar.refresh()
 
         t0 = time.perf_counter()
-        result = train_many(config, args.seeds, args.steps, progress=progress)
+        result = train_many(config, args.seeds, args.steps, progress=progress,
+                            initial_partitions=initial)
         if bar is not None:
             bar.close()
         summary = summarize_run(result, args.steps)
         rows[name] = dict(description=desc, seeds=args.seeds, steps=args.steps,
                           config=dataclasses.asdict(config), summary=summary,
+                          starts_from=source, final_partitions=_final_boxes(result),
                           curves=dict(
                               env_steps=result.metrics["env_steps"][0].tolist(),
                               greedy=result.metrics["eval_success"].mean(0).tolist(),

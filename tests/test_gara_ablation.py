@@ -12,7 +12,7 @@ from experiments import gara_ablation as ab
 def test_every_variant_builds_and_the_default_differs_from_the_reference_as_documented():
     variants = ab._variants()
     assert {"reference", "default", "previous_default", "handcrafted"} <= set(variants)
-    assert all(isinstance(desc, str) and desc for desc, _ in variants.values())
+    assert all(isinstance(v[0], str) and v[0] for v in variants.values())
     ref, ours = variants["reference"][1], variants["default"][1]
     differ = {f for f in ("goal_membership", "reached_at_start", "stall_penalty",
                           "relabel_replay") if getattr(ref, f) != getattr(ours, f)}
@@ -23,6 +23,29 @@ def test_every_variant_builds_and_the_default_differs_from_the_reference_as_docu
     # The previous default's rows are the default with the reference's step size.
     assert variants["default_lr0.01"][1] == dataclasses.replace(ours, low=ref.low)
     assert variants["handcrafted_lr0.01"][1].low == ref.low
+
+
+def test_results_rows_revert_one_mechanism_each():
+    """Each ``results-...`` row differs from ``results`` in the fields its name says."""
+    variants = ab._variants()
+    res = variants["results"][1]
+    flat = lambda c: {**dataclasses.asdict(c), **{f"high.{k}": v for k, v in  # noqa: E731
+                                                  dataclasses.asdict(c.high).items()}}
+    expect = {"results-coverage_final": {"coverage"}, "results-epoch_cadence": {"cadence"},
+              "results-memory_counts": {"pair_counts", "relabel_counts"},
+              "results-no_count_inflation": {"relabel_counts"},
+              "results-q_update_written_entry": {"high", "high.q_update"},
+              "results-q_rows_copied": {"q_rows_after_split"},
+              "results-300_step_episodes": {"max_episode_steps"},
+              "results_min_steps_5000": {"min_steps"},
+              "results_planning": {"planning"}, "results_planning_from_q": {"planning"}}
+    for name, fields in expect.items():
+        a, b = flat(res), flat(variants[name][1])
+        assert {k for k in a if a[k] != b[k]} == fields, name
+    assert ab._source(variants["results_planning_from_q"]) == "results"
+    assert ab._source(variants["results_planning"]) is None
+    assert ab.with_sources(["results_planning_from_q", "default", "results"], variants) == [
+        "results", "results_planning_from_q", "default"]
 
 
 def _records(points, k=2):

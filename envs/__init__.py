@@ -28,8 +28,40 @@ PHYSICS_ENVS = ("point_u_maze",)
 ENV_NAMES = tuple(LAYOUTS) + PHYSICS_ENVS
 
 
+#: Environments added by :func:`register`: name -> factory ``(**overrides) -> (env, params)``.
+_REGISTERED: dict = {}
+
+
+def register(name: str, factory) -> None:
+    """Make ``make(name)`` (and so every config's ``env=name``) build ``factory(**overrides)``.
+
+    ``factory`` returns ``(env, params)`` of an environment with this package's functional
+    interface (``reset``, ``step_autoreset``, ``observation_space``, ``num_actions``; see
+    :class:`Maze`) whose observation space is a box. Registering a name again replaces the
+    factory; a built-in name cannot be registered (``ValueError``). Registration lives in the
+    process: code that trains in another process registers there too.
+
+    Example:
+        >>> register("u_maze_short", lambda **o: make("u_maze", **{"max_steps": 50, **o}))
+        >>> make("u_maze_short")[1].max_steps
+        50
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name: must be a non-empty string, got {name!r}")
+    if name in ENV_NAMES:
+        raise ValueError(f"name: {name!r} is a built-in environment and cannot be registered")
+    if not callable(factory):
+        raise ValueError(f"factory: must be callable, got {factory!r}")
+    _REGISTERED[name] = factory
+
+
+def names() -> tuple[str, ...]:
+    """Every name :func:`make` accepts now: :data:`ENV_NAMES`, then the registered ones."""
+    return ENV_NAMES + tuple(_REGISTERED)
+
+
 def make(name: str, **overrides):
-    """``(env, params)`` for a name of :data:`ENV_NAMES`; keyword overrides replace fields.
+    """``(env, params)`` for a name of :func:`names`; keyword overrides replace fields.
 
     The kinematic layouts of SPEC.md's table give a :class:`Maze`; ``"point_u_maze"`` gives
     the brax-simulated :class:`envs.point_maze.PointMaze` (brax is imported only then). Raises
@@ -44,8 +76,10 @@ def make(name: str, **overrides):
         from envs.point_maze import make_point_maze
 
         return make_point_maze(**overrides)
+    if name in _REGISTERED:
+        return _REGISTERED[name](**overrides)
     if name not in LAYOUTS:
-        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(ENV_NAMES)}")
+        raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(names())}")
     params = make_params(name, **overrides)
     return Maze(name), params
 
@@ -61,6 +95,8 @@ __all__ = [
     "EnvState",
     "Maze",
     "make",
+    "names",
+    "register",
     "make_params",
     "random_rollout",
     "state_from_vector",

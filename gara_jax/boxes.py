@@ -268,3 +268,43 @@ def check_tiles(lo, hi, domain_lo, domain_hi, name: str = "boxes") -> None:
         raise ValueError(
             f"{name}: boxes do not cover the domain (volume {float(total)} of {float(domain)})"
         )
+
+
+def check_covers(lo, hi, domain_lo, domain_hi, name: str = "boxes",
+                 max_cells: int = 1_000_000) -> None:
+    """Raise ``ValueError`` unless boxes ``[N, D]`` lie in the domain and their union is all of it.
+
+    Unlike :func:`check_tiles`, boxes may overlap (a first-box rule decides who owns a shared
+    point, as in the authors' labyrinth partition, SPEC.md 2.1). Exact: the domain is cut at
+    every box bound into grid cells and each cell's centre must lie in some box; the message
+    names an uncovered point. Host-side; raises if the grid would exceed ``max_cells``.
+
+    Example:
+        >>> import numpy as np
+        >>> check_covers(np.array([[0.0], [0.5]]), np.array([[2.0], [3.0]]), [0.0], [3.0])
+        >>> check_covers(np.array([[0.0], [2.0]]), np.array([[1.0], [3.0]]), [0.0], [3.0])
+        Traceback (most recent call last):
+        ...
+        ValueError: boxes: no box contains the point [1.5] of the domain
+    """
+    lo, hi = validate_boxes(lo, hi, name)
+    dlo, dhi = validate_boxes(domain_lo, domain_hi, "domain")
+    if lo.ndim != 2 or lo.shape[1] != dlo.shape[-1]:
+        raise ValueError(f"{name}: expected shape [N, {dlo.shape[-1]}], got {lo.shape}")
+    outside = (lo < dlo) | (hi > dhi)
+    if outside.any():
+        i = int(np.argwhere(outside)[0][0])
+        raise ValueError(f"{name}: box {i} ({lo[i]}, {hi[i]}) leaves the domain")
+    # Cell centres along each dimension (the domain's value itself where it is degenerate).
+    centres = []
+    for d in range(dlo.shape[0]):
+        cuts = np.unique(np.concatenate([[dlo[d], dhi[d]], lo[:, d], hi[:, d]]))
+        centres.append((cuts[:-1] + cuts[1:]) / 2 if len(cuts) > 1 else cuts)
+    cells = int(np.prod([len(c) for c in centres]))
+    if cells > max_cells:
+        raise ValueError(f"{name}: {cells} grid cells to check exceed max_cells={max_cells}")
+    points = np.stack(np.meshgrid(*centres, indexing="ij"), axis=-1).reshape(-1, dlo.shape[0])
+    inside = np.any(np.all((lo <= points[:, None]) & (points[:, None] <= hi), axis=-1), axis=-1)
+    if not inside.all():
+        raise ValueError(f"{name}: no box contains the point {points[~inside][0].tolist()} of "
+                         "the domain")

@@ -19,6 +19,8 @@ after it (appended pieces come after every other box).
 
 from __future__ import annotations
 
+from types import MappingProxyType
+
 import flax.struct
 import jax.numpy as jnp
 import numpy as np
@@ -210,26 +212,180 @@ def check_tiling(partition: Partition, state_lo=U_MAZE_LO, state_hi=U_MAZE_HI) -
     boxes.check_tiles(lo, hi, state_lo, state_hi, name="partition")
 
 
-def _with_full_velocity(xy_lo, xy_hi, state_lo, state_hi):
-    lo = np.array([[a, b, state_lo[2], state_lo[3]] for a, b in xy_lo], dtype=np.float64)
-    hi = np.array([[a, b, state_hi[2], state_hi[3]] for a, b in xy_hi], dtype=np.float64)
-    return lo, hi
+#: The authors' partitions of every maze layout (SPEC.md sections 2 and 2.1), over (x, y) in
+#: their order: rows ``(x_lo, x_hi, y_lo, y_hi, split)``, where ``split`` bisects the velocity
+#: ranges (``""`` none, ``"vx"``, ``"vy"`` or ``"vx,vy"``; see :func:`layout_boxes`).
+#: ``big_u_maze`` gets one box the authors do not have, ``[0,6]x[3,6]`` last: their boxes cover
+#: ``y <= 3`` only, and a state can end up above (inside the wall ``y in [3, 4]`` after a bound
+#: clamp, SPEC.md section 1), so the extra box makes the partition a tiling.
+LAYOUT_PARTITIONS = MappingProxyType({
+    "u_maze": {
+        "handcrafted": ((0, 1, 0, 2, ""), (0, 1, 2, 3, ""), (1, 1.5, 2, 3, ""),
+                        (1, 1.5, 0, 2, ""), (1.5, 3, 2, 3, ""), (1.5, 3, 0, 2, "")),
+        "gara": ((0, 1, 0, 3, ""), (1, 3, 0, 3, "")),
+    },
+    "four_rooms": {
+        "handcrafted": ((0, 1, 0, 2, ""), (0, 1, 2, 3, ""), (1, 3, 2, 3, ""), (1, 3, 0, 2, "")),
+        "gara": ((0, 1, 0, 3, ""), (1, 3, 0, 3, "")),
+    },
+    "u_maze_6": {
+        "handcrafted": ((0, 2, 0, 4, ""), (0, 2, 4, 6, ""), (2, 4, 4, 6, ""),
+                        (2, 4, 0, 4, ""), (4, 6, 4, 6, ""), (4, 6, 0, 4, "")),
+        "gara": ((0, 3, 0, 6, ""), (3, 6, 0, 6, "")),
+    },
+    "big_u_maze": {
+        "handcrafted": ((0, 1, 0, 2, ""), (0, 1, 2, 3, ""), (1, 4, 0, 2, ""),
+                        (1, 4, 2, 3, ""), (4, 6, 0, 2, ""), (4, 6, 2, 3, ""),
+                        (0, 6, 3, 6, "")),
+        "gara": ((0, 3, 0, 3, ""), (3, 6, 0, 3, ""), (0, 6, 3, 6, "")),
+    },
+    "labyrinth": {
+        "handcrafted": ((0, 1, 0, 4, ""), (0, 1, 4, 6, "vx"), (1, 6, 0, 0.5, "vx"),
+                        (1, 3, 0.5, 6, "vx,vy"), (3, 5.5, 0.5, 6, "vx,vy"),
+                        (5.5, 6, 0, 6, "vy")),
+        "gara": ((0, 3, 0, 3, ""), (0, 3, 3, 6, ""), (3, 6, 0, 3, ""), (3, 6, 3, 6, "")),
+    },
+})
+#: Partition kinds of :data:`LAYOUT_PARTITIONS`.
+PARTITION_KINDS = ("handcrafted", "gara")
+#: Layouts whose authors' Handcrafted boxes overlap (the first-box rule decides a shared part):
+#: in the labyrinth ``[1,6]x[0,0.5]`` and ``[5.5,6]x[0,6]`` share ``[5.5,6]x[0,0.5]``.
+OVERLAPPING = frozenset({("labyrinth", "handcrafted")})
 
 
-def handcrafted(max_goals: int = 6) -> Partition:
-    """The reference's handcrafted 6-box partition of the U-maze (SPEC.md section 2).
+def state_space(n: float) -> tuple[np.ndarray, np.ndarray]:
+    """The ``(x, y, vx, vy)`` box of a maze of size ``n``: ``[0, n]^2 x [-1, 1]^2``.
 
-    Boxes over (x, y) with full velocity ranges ``[-1, 1]``: ``[0,1]x[0,2]``, ``[0,1]x[2,3]``,
-    ``[1,1.5]x[2,3]``, ``[1,1.5]x[0,2]``, ``[1.5,3]x[2,3]``, ``[1.5,3]x[0,2]``.
+    Example:
+        >>> [a.tolist() for a in state_space(6.0)]
+        [[0.0, 0.0, -1.0, -1.0], [6.0, 6.0, 1.0, 1.0]]
+    """
+    return (np.array([0.0, 0.0, -1.0, -1.0]), np.array([float(n), float(n), 1.0, 1.0]))
+
+
+def layout_boxes(layout: str, kind: str) -> tuple[np.ndarray, np.ndarray]:
+    """The authors' boxes ``lo, hi [N, 4]`` of a layout's ``kind`` partition (SPEC.md 2, 2.1).
+
+    A split row becomes 2 boxes (bisected at the velocity midpoint 0, lower half first) or 4
+    (``"vx,vy"``: (vx low, vy low), (vx low, vy high), (vx high, vy low), (vx high, vy high)).
+
+    Example:
+        >>> lo, hi = layout_boxes("labyrinth", "handcrafted")
+        >>> len(lo), lo[1].tolist(), hi[1].tolist()
+        (15, [0.0, 4.0, -1.0, -1.0], [1.0, 6.0, 0.0, 1.0])
+    """
+    if layout not in LAYOUT_PARTITIONS:
+        raise ValueError(f"layout: no built-in partitions for {layout!r}; valid: "
+                         f"{', '.join(LAYOUT_PARTITIONS)}")
+    if kind not in PARTITION_KINDS:
+        raise ValueError(f"kind: must be one of {PARTITION_KINDS}, got {kind!r}")
+    halves = {"": [((-1, -1), (1, 1))],
+              "vx": [((-1, -1), (0, 1)), ((0, -1), (1, 1))],
+              "vy": [((-1, -1), (1, 0)), ((-1, 0), (1, 1))],
+              "vx,vy": [((-1, -1), (0, 0)), ((-1, 0), (0, 1)),
+                        ((0, -1), (1, 0)), ((0, 0), (1, 1))]}
+    lo, hi = [], []
+    for x_lo, x_hi, y_lo, y_hi, split in LAYOUT_PARTITIONS[layout][kind]:
+        for v_lo, v_hi in halves[split]:
+            lo.append((x_lo, y_lo, *v_lo))
+            hi.append((x_hi, y_hi, *v_hi))
+    return np.array(lo, np.float64), np.array(hi, np.float64)
+
+
+def from_boxes(lo, hi, state_lo, state_hi, max_goals: int | None = None, *,
+               overlap: bool = False, name: str = "boxes", dtype=jnp.float32) -> Partition:
+    """A validated partition of the state space ``[state_lo, state_hi]`` made of ``lo, hi``.
+
+    The boxes must tile the space exactly (:func:`gara_jax.boxes.check_tiles`); with
+    ``overlap=True`` they may overlap and must only cover it (:func:`gara_jax.boxes.check_covers`;
+    the first box containing a state owns it). ``max_goals`` defaults to the box count. Raises
+    ``ValueError`` naming ``name`` otherwise (and :class:`PartitionFullError` when the boxes
+    exceed ``max_goals``).
+
+    Example:
+        >>> p = from_boxes([[0.0, 0], [1.0, 0]], [[1.0, 2], [2.0, 2]], [0, 0], [2, 2])
+        >>> int(p.count)
+        2
+        >>> from_boxes([[0.0, 0]], [[1.0, 2]], [0, 0], [2, 2], name="initial_boxes")
+        Traceback (most recent call last):
+        ...
+        ValueError: initial_boxes: boxes do not cover the domain (volume 2.0 of 4.0)
+    """
+    lo, hi = boxes.validate_boxes(lo, hi, name)
+    state_lo, state_hi = boxes.validate_boxes(state_lo, state_hi, "state space")
+    if lo.ndim != 2 or lo.shape[1] != state_lo.shape[-1]:
+        raise ValueError(f"{name}: expected boxes of shape [N, {state_lo.shape[-1]}] (the "
+                         f"state's dimensions), got {lo.shape}")
+    check = boxes.check_covers if overlap else boxes.check_tiles
+    check(lo, hi, state_lo, state_hi, name=name)
+    max_goals = len(lo) if max_goals is None else max_goals
+    return Partition.create(lo, hi, max_goals, dtype=dtype)
+
+
+def layout_partition(layout: str, kind: str, max_goals: int | None = None) -> Partition:
+    """The authors' ``kind`` partition of a maze layout, validated (see :func:`layout_boxes`).
+
+    Example:
+        >>> p = layout_partition("four_rooms", "handcrafted", max_goals=8)
+        >>> int(p.count), p.max_goals
+        (4, 8)
+    """
+    from envs.layouts import layout_spec
+
+    lo, hi = layout_boxes(layout, kind)
+    state_lo, state_hi = state_space(layout_spec(layout)["n"])
+    return from_boxes(lo, hi, state_lo, state_hi, max_goals,
+                      overlap=(layout, kind) in OVERLAPPING, name=f"{layout} {kind} partition")
+
+
+def save_boxes(path, partition: Partition) -> None:
+    """Write the boxes in use of ``partition`` to a JSON file ``{"lo": [...], "hi": [...]}``.
+
+    :func:`load_boxes` reads them back, e.g. to start a run from another run's final partition
+    (``GaraConfig(initial_boxes=load_boxes(path))``). The first-box order is written as
+    the boxes' order (a ranked partition's boxes are sorted by rank).
+
+    Example:
+        >>> import tempfile, os
+        >>> path = os.path.join(tempfile.mkdtemp(), "p.json")
+        >>> save_boxes(path, gara_initial())
+        >>> [len(b) for b in load_boxes(path)]
+        [2, 2]
+    """
+    import json
+
+    lo, hi = partition.boxes()
+    if partition.rank is not None:
+        order = np.argsort(np.asarray(partition.rank)[: len(lo)], kind="stable")
+        lo, hi = lo[order], hi[order]
+    with open(path, "w") as f:
+        json.dump({"lo": lo.tolist(), "hi": hi.tolist()}, f)
+
+
+def load_boxes(path) -> tuple[tuple, tuple]:
+    """The ``(lo, hi)`` boxes a :func:`save_boxes` file holds, as nested tuples of floats."""
+    import json
+
+    with open(path) as f:
+        data = json.load(f)
+    if not isinstance(data, dict) or set(data) != {"lo", "hi"}:
+        raise ValueError(f"{path}: expected a JSON object with keys 'lo' and 'hi'")
+    return (tuple(tuple(float(v) for v in row) for row in data["lo"]),
+            tuple(tuple(float(v) for v in row) for row in data["hi"]))
+
+
+def handcrafted(max_goals: int = 6, layout: str = "u_maze") -> Partition:
+    """The reference's handcrafted partition of a maze layout (SPEC.md 2 and 2.1).
+
+    On the U-maze (the default): 6 boxes over (x, y) with full velocity ranges ``[-1, 1]``:
+    ``[0,1]x[0,2]``, ``[0,1]x[2,3]``, ``[1,1.5]x[2,3]``, ``[1,1.5]x[0,2]``, ``[1.5,3]x[2,3]``,
+    ``[1.5,3]x[0,2]``. Other layouts: :data:`LAYOUT_PARTITIONS`.
 
     Example:
         >>> int(handcrafted(max_goals=8).count)
         6
     """
-    xy_lo = [(0, 0), (0, 2), (1, 2), (1, 0), (1.5, 2), (1.5, 0)]
-    xy_hi = [(1, 2), (1, 3), (1.5, 3), (1.5, 2), (3, 3), (3, 2)]
-    lo, hi = _with_full_velocity(xy_lo, xy_hi, U_MAZE_LO, U_MAZE_HI)
-    return Partition.create(lo, hi, max_goals)
+    return layout_partition(layout, "handcrafted", max_goals)
 
 
 def gara_initial(max_goals: int = 64, state_lo=U_MAZE_LO, state_hi=U_MAZE_HI,
@@ -239,7 +395,8 @@ def gara_initial(max_goals: int = 64, state_lo=U_MAZE_LO, state_hi=U_MAZE_HI,
     For the U-maze (the default domain) the boxes are ``[0,1]x[0,3]`` and ``[1,3]x[0,3]`` with
     full velocity ranges. For another domain ``(state_lo, state_hi)`` over any number of
     dimensions (``x`` first), ``x`` is split at ``split_x``, by default one third of the way
-    along, which is where the reference splits the n = 3 maze (at its first wall).
+    along, which is where the reference splits the n = 3 maze (at its first wall). The other
+    layouts' initial partitions: ``layout_partition(layout, "gara")``.
 
     Example:
         >>> gara_initial().boxes()[1][0].tolist()

@@ -363,9 +363,9 @@ def starting_partitions(config, partitions, n_seeds: int):
 
     Each item is a :class:`~gara_jax.partition.Partition` (one seed's, e.g. from
     :func:`final_partitions`), a :class:`PartitionSnapshot` or a pair ``(lo, hi)`` of
-    ``[N, 4]`` boxes. Every partition must tile the U-maze's state space exactly
-    (:func:`gara_jax.partition.check_tiling`: ``[0, 3]^2 x [-1, 1]^2``, no overlaps, no gaps)
-    and fit in ``config.max_goals``. With ``piece_order="parent"`` a partition's ``rank`` is
+    ``[N, D]`` boxes. Every partition must tile the environment's observation space exactly
+    (:func:`gara_jax.partition.check_tiling`; the U-maze's is ``[0, 3]^2 x [-1, 1]^2``: no
+    overlaps, no gaps) and fit in ``config.max_goals``. With ``piece_order="parent"`` a partition's ``rank`` is
     kept (index order if it has none); otherwise a ranked partition is refused. Raises
     ``ValueError`` naming ``initial_partitions`` (and the seed's row) otherwise.
 
@@ -390,7 +390,12 @@ def starting_partitions(config, partitions, n_seeds: int):
             partitions, Sequence) or len(partitions) != n_seeds:
         got = len(partitions) if isinstance(partitions, Sequence) else type(partitions).__name__
         raise ValueError(f"initial_partitions: one partition per seed ({n_seeds}), got {got}")
+    import envs
+
     ranked = config.piece_order == "parent"
+    env, env_params = envs.make(config.env)
+    space = env.observation_space(env_params)
+    state_lo, state_hi = np.asarray(space.low), np.asarray(space.high)
     rows = []
     for i, item in enumerate(partitions):
         try:
@@ -413,12 +418,12 @@ def starting_partitions(config, partitions, n_seeds: int):
             if ranked and rank is not None and len(rank) != config.max_goals:
                 raise ValueError(f"its rank has {len(rank)} entries, max_goals is "
                                  f"{config.max_goals}")
-            if np.shape(lo)[-1:] != (4,):
-                raise ValueError(f"boxes over the U-maze's 4 dimensions, got shape "
-                                 f"{np.shape(lo)}")
+            if np.shape(lo)[-1:] != state_lo.shape:
+                raise ValueError(f"boxes over the observation's {len(state_lo)} dimensions, "
+                                 f"got shape {np.shape(lo)}")
             p = part.Partition.create(lo, hi, config.max_goals,
                                       rank=(True if rank is None else rank) if ranked else None)
-            part.check_tiling(p)
+            part.check_tiling(p, state_lo, state_hi)
         except ValueError as err:  # PartitionFullError included
             raise ValueError(f"initial_partitions[{i}]: {err}") from None
         rows.append(p)

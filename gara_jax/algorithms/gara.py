@@ -47,9 +47,6 @@ from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
 from gara_jax.algorithms.base import Algorithm, epoch_metrics
 
 REFINE_METHODS = ("crown", "ibp")
-#: Environments with the U-maze's geometry and (x, y, vx, vy) observations, on which SPEC.md
-#: section 2's partitions apply: the kinematic maze and the rigid-body one.
-U_MAZE_ENVS = ("u_maze", "point_u_maze")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -102,7 +99,9 @@ class HandcraftedConfig:
     version.
 
     Attributes:
-        env: environment name (one of ``U_MAZE_ENVS``: the partitions are the U-maze's).
+        env: environment name: a maze layout (``envs.LAYOUTS``, whose partitions SPEC.md
+            sections 2 and 2.1 give), ``"point_u_maze"`` (the U-maze's partitions) or a name
+            added by ``envs.register`` (with ``initial_boxes``).
         k: environment steps per option (the high level decides every ``k`` steps).
         steps_per_epoch: environment steps per jitted training epoch.
         eval_episodes: greedy evaluation episodes per seed after every epoch.
@@ -171,6 +170,14 @@ class HandcraftedConfig:
             ``"box"``, pressing against the U-maze wall at ``x = 1`` "enters" GARA's initial
             right-hand goal ``[1, 3] x [0, 3]``.
 
+        initial_boxes: ``(lo, hi)``, each ``[N, D]`` (lists, arrays or tuples; kept as tuples):
+            the goals the agent starts from instead of the layout's built-in ones, Handcrafted's
+            fixed partition or GARA's initial one (e.g. a partition another run learned:
+            ``gara_jax.partition.load_boxes``). Checked when the agent is built against the
+            environment's observation space: GARA's must tile it exactly, Handcrafted's must
+            cover it (overlaps allowed: the first box containing a state owns it). ``None``:
+            the layout's partition (``gara_jax.partition.LAYOUT_PARTITIONS``).
+
     The low level defaults to the reference's DQN loss (``DQNConfig(loss="all_actions")``,
     see :class:`~gara_jax.agents.dqn.DQNConfig`; with the textbook loss on the taken action
     only, the greedy policies of a snapshot are much less reliable) with an Adam step size of
@@ -214,6 +221,7 @@ class HandcraftedConfig:
     eval_epsilon_low: float = 0.0
     terminal_on_entry: bool = False
     goal_membership: str = "partition"
+    initial_boxes: tuple | None = None
 
     def __post_init__(self):
         _validate_common(self)
@@ -510,9 +518,17 @@ class GaraConfig(HandcraftedConfig):
                 f"{self.split_epsilon_boost}")
         _one_of(self, "q_columns", Q_COLUMNS)
         _one_of(self, "piece_order", PIECE_ORDERS)
-        if self.initial_split_x is not None and not 0.0 < self.initial_split_x < 3.0:
-            raise ValueError("initial_split_x: must be None or lie strictly inside the U-maze's "
-                             f"x range (0, 3), got {self.initial_split_x}")
+        if self.initial_split_x is not None:
+            if self.initial_boxes is not None:
+                raise ValueError("initial_split_x: applies to the layout's initial partition, "
+                                 "not to initial_boxes (give one of them)")
+            if self.env in envs.ENV_NAMES:
+                from envs.layouts import layout_spec
+
+                n = layout_spec("u_maze" if self.env == "point_u_maze" else self.env)["n"]
+                if not 0.0 < self.initial_split_x < n:
+                    raise ValueError(f"initial_split_x: must be None or lie strictly inside the "
+                                     f"maze's x range (0, {n:g}), got {self.initial_split_x}")
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
         _one_of(self, "coverage", COVERAGE_RULES)
         _one_of(self, "q_rows_after_split", Q_ROWS_AFTER_SPLIT)
@@ -649,10 +665,34 @@ def _bools(cfg, *names):
             raise ValueError(f"{name}: must be a bool, got {getattr(cfg, name)!r}")
 
 
+def _boxes_tuple(value):
+    """``initial_boxes`` as ``(lo, hi)`` nested tuples of floats (hashable, like every field)."""
+    from gara_jax import boxes
+
+    try:
+        lo, hi = value
+    except (TypeError, ValueError):
+        raise ValueError("initial_boxes: must be a pair (lo, hi) of [N, D] box bounds, got "
+                         f"{value!r}") from None
+    lo, hi = boxes.validate_boxes(lo, hi, "initial_boxes")
+    if lo.ndim != 2 or len(lo) < 1:
+        raise ValueError(f"initial_boxes: expected lo and hi of shape [N>=1, D], got {lo.shape}")
+    if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
+        raise ValueError("initial_boxes: box bounds must be finite")
+    return (tuple(tuple(float(v) for v in row) for row in lo),
+            tuple(tuple(float(v) for v in row) for row in hi))
+
+
 def _validate_common(cfg):
-    if cfg.env not in envs.ENV_NAMES:
-        raise ValueError(f"env: unknown environment {cfg.env!r}; valid: {envs.ENV_NAMES}")
+    if cfg.env not in envs.names():
+        raise ValueError(f"env: unknown environment {cfg.env!r}; valid: {envs.names()} "
+                         "(envs.register adds one)")
     _positive_int(cfg, "k", "steps_per_epoch", "eval_episodes", "max_goals")
+    if cfg.initial_boxes is not None:
+        object.__setattr__(cfg, "initial_boxes", _boxes_tuple(cfg.initial_boxes))
+        if len(cfg.initial_boxes[0]) > cfg.max_goals:
+            raise ValueError(f"max_goals: {len(cfg.initial_boxes[0])} initial_boxes do not fit "
+                             f"in max_goals={cfg.max_goals}")
     if cfg.max_episode_steps is not None:
         _positive_int(cfg, "max_episode_steps")
     if not isinstance(cfg.low, DQNConfig):
@@ -772,20 +812,54 @@ class GaraState:
     pair_count: Any = None
 
 
-def initial_partition(config):
-    """The partition an agent starts from: SPEC.md section 2's handcrafted or GARA boxes."""
+def initial_partition(config, env=None, env_params=None):
+    """The partition an agent starts from (validated): ``config.initial_boxes`` if given, else
+    the layout's Handcrafted or GARA partition (SPEC.md sections 2 and 2.1).
+
+    ``env, env_params`` (default: ``envs.make(config.env)``) give the observation space that
+    ``initial_boxes`` must tile (GARA) or cover (Handcrafted). Raises ``ValueError`` naming the
+    field: ``initial_boxes`` for an environment without built-in partitions or boxes that do not
+    fit the space, ``max_goals`` for a partition larger than the capacity.
+
+    Example:
+        >>> int(initial_partition(HandcraftedConfig(env="labyrinth", max_goals=15)).count)
+        15
+        >>> initial_partition(HandcraftedConfig(env="labyrinth"))
+        Traceback (most recent call last):
+        ...
+        ValueError: max_goals: the labyrinth handcrafted partition has 15 boxes; set max_goals >= 15
+    """
+    from envs.layouts import layout_spec
     from gara_jax import partition as part
 
-    if config.env not in U_MAZE_ENVS:
-        raise ValueError(
-            f"env: the handcrafted and initial GARA partitions are defined for the U-maze "
-            f"environments {U_MAZE_ENVS} only, got {config.env!r}")
-    if isinstance(config, GaraConfig):
-        p = part.gara_initial(max_goals=config.max_goals, split_x=config.initial_split_x)
-        if config.piece_order == "parent":
-            p = p.replace(rank=jnp.arange(config.max_goals, dtype=jnp.int32))
-        return p
-    return part.handcrafted(max_goals=config.max_goals)
+    refining = isinstance(config, GaraConfig)
+    if config.initial_boxes is not None:
+        if env is None:
+            env, env_params = envs.make(config.env)
+        space = env.observation_space(env_params)
+        p = part.from_boxes(*config.initial_boxes, np.asarray(space.low), np.asarray(space.high),
+                            config.max_goals, overlap=not refining, name="initial_boxes")
+    else:
+        layout = "u_maze" if config.env == "point_u_maze" else config.env
+        if layout not in part.LAYOUT_PARTITIONS:
+            raise ValueError(
+                f"initial_boxes: environment {config.env!r} has no built-in partition (the maze "
+                f"layouts {tuple(part.LAYOUT_PARTITIONS)} and 'point_u_maze' do); give the "
+                "boxes to start from")
+        kind = "gara" if refining else "handcrafted"
+        if refining and config.initial_split_x is not None:
+            state_lo, state_hi = part.state_space(layout_spec(layout)["n"])
+            p = part.gara_initial(max_goals=config.max_goals, state_lo=state_lo,
+                                  state_hi=state_hi, split_x=config.initial_split_x)
+        else:
+            n_boxes = len(part.layout_boxes(layout, kind)[0])
+            if n_boxes > config.max_goals:
+                raise ValueError(f"max_goals: the {layout} {kind} partition has {n_boxes} boxes; "
+                                 f"set max_goals >= {n_boxes}")
+            p = part.layout_partition(layout, kind, config.max_goals)
+    if refining and config.piece_order == "parent":
+        p = p.replace(rank=jnp.arange(config.max_goals, dtype=jnp.int32))
+    return p
 
 
 def intrinsic_reward(next_state, target_lo, target_hi, reached, reach_reward=1.0,
@@ -879,12 +953,12 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         env_overrides["max_steps"] = int(config.max_episode_steps)
     env, env_params = envs.make(config.env, **env_overrides)
     max_steps = int(env_params.max_steps)
-    dim = 4
+    dim = int(np.prod(env.observation_space(env_params).shape))
     G = config.max_goals
     k = config.k
     dqn = make_dqn(config.low, input_dim=3 * dim, num_actions=env.num_actions)
     high_cfg = config.high
-    partition0 = initial_partition(config)
+    partition0 = initial_partition(config, env, env_params)
     memory_capacity = config.memory_capacity if refining else 1
     windows = refining and config.memory == "windows"
     cumulative = refining and config.pair_counts == "cumulative"

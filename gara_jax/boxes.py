@@ -217,6 +217,19 @@ def merge_adjacent(lo, hi) -> tuple[np.ndarray, np.ndarray]:
     return np.stack(lo_list), np.stack(hi_list)
 
 
+def _boxes_in_domain(lo, hi, domain_lo, domain_hi, name):
+    """Validated boxes ``[N, D]`` and domain, every box inside the domain (else ``ValueError``)."""
+    lo, hi = validate_boxes(lo, hi, name)
+    dlo, dhi = validate_boxes(domain_lo, domain_hi, "domain")
+    if lo.ndim != 2 or lo.shape[1] != dlo.shape[-1]:
+        raise ValueError(f"{name}: expected shape [N, {dlo.shape[-1]}], got {lo.shape}")
+    outside = (lo < dlo) | (hi > dhi)
+    if outside.any():
+        i = int(np.argwhere(outside)[0][0])
+        raise ValueError(f"{name}: box {i} ({lo[i]}, {hi[i]}) leaves the domain")
+    return lo, hi, dlo, dhi
+
+
 def check_tiles(lo, hi, domain_lo, domain_hi, name: str = "boxes") -> None:
     """Raise ``ValueError`` unless boxes ``[N, D]`` tile the domain box exactly.
 
@@ -233,14 +246,7 @@ def check_tiles(lo, hi, domain_lo, domain_hi, name: str = "boxes") -> None:
         ...
         ValueError: boxes: boxes 0 and 1 overlap in their interiors
     """
-    lo, hi = validate_boxes(lo, hi, name)
-    dlo, dhi = validate_boxes(domain_lo, domain_hi, "domain")
-    if lo.ndim != 2 or lo.shape[1] != dlo.shape[-1]:
-        raise ValueError(f"{name}: expected shape [N, {dlo.shape[-1]}], got {lo.shape}")
-    outside = (lo < dlo) | (hi > dhi)
-    if outside.any():
-        i = int(np.argwhere(outside)[0][0])
-        raise ValueError(f"{name}: box {i} ({lo[i]}, {hi[i]}) leaves the domain")
+    lo, hi, dlo, dhi = _boxes_in_domain(lo, hi, domain_lo, domain_hi, name)
     wide = dhi > dlo
     flat = ~wide
     if flat.any():
@@ -287,14 +293,7 @@ def check_covers(lo, hi, domain_lo, domain_hi, name: str = "boxes",
         ...
         ValueError: boxes: no box contains the point [1.5] of the domain
     """
-    lo, hi = validate_boxes(lo, hi, name)
-    dlo, dhi = validate_boxes(domain_lo, domain_hi, "domain")
-    if lo.ndim != 2 or lo.shape[1] != dlo.shape[-1]:
-        raise ValueError(f"{name}: expected shape [N, {dlo.shape[-1]}], got {lo.shape}")
-    outside = (lo < dlo) | (hi > dhi)
-    if outside.any():
-        i = int(np.argwhere(outside)[0][0])
-        raise ValueError(f"{name}: box {i} ({lo[i]}, {hi[i]}) leaves the domain")
+    lo, hi, dlo, dhi = _boxes_in_domain(lo, hi, domain_lo, domain_hi, name)
     # Cell centres along each dimension (the domain's value itself where it is degenerate).
     centres = []
     for d in range(dlo.shape[0]):

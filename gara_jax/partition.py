@@ -370,8 +370,19 @@ def load_boxes(path) -> tuple[tuple, tuple]:
         data = json.load(f)
     if not isinstance(data, dict) or set(data) != {"lo", "hi"}:
         raise ValueError(f"{path}: expected a JSON object with keys 'lo' and 'hi'")
-    return (tuple(tuple(float(v) for v in row) for row in data["lo"]),
-            tuple(tuple(float(v) for v in row) for row in data["hi"]))
+    return boxes_as_tuples(data["lo"], data["hi"])
+
+
+def boxes_as_tuples(lo, hi) -> tuple[tuple, tuple]:
+    """``lo, hi`` (any nested sequence or array) as nested tuples of floats: hashable, so a
+    config field can hold them.
+
+    Example:
+        >>> boxes_as_tuples([[0, 1]], [[2, 3]])
+        (((0.0, 1.0),), ((2.0, 3.0),))
+    """
+    return (tuple(tuple(float(v) for v in row) for row in np.asarray(lo)),
+            tuple(tuple(float(v) for v in row) for row in np.asarray(hi)))
 
 
 def handcrafted(max_goals: int = 6, layout: str = "u_maze") -> Partition:

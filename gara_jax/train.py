@@ -365,8 +365,8 @@ def starting_partitions(config, partitions, n_seeds: int):
     :func:`final_partitions`), a :class:`PartitionSnapshot` or a pair ``(lo, hi)`` of
     ``[N, D]`` boxes. Every partition must tile the environment's observation space exactly
     (:func:`gara_jax.partition.check_tiling`; the U-maze's is ``[0, 3]^2 x [-1, 1]^2``: no
-    overlaps, no gaps) and fit in ``config.max_goals``. With ``piece_order="parent"`` a partition's ``rank`` is
-    kept (index order if it has none); otherwise a ranked partition is refused. Raises
+    overlaps, no gaps) and fit in ``config.max_goals``. With ``piece_order="parent"`` a
+    partition's ``rank`` is kept (index order if it has none); otherwise a ranked partition is refused. Raises
     ``ValueError`` naming ``initial_partitions`` (and the seed's row) otherwise.
 
     Example:

@@ -668,6 +668,7 @@ def _bools(cfg, *names):
 def _boxes_tuple(value):
     """``initial_boxes`` as ``(lo, hi)`` nested tuples of floats (hashable, like every field)."""
     from gara_jax import boxes
+    from gara_jax import partition as part
 
     try:
         lo, hi = value
@@ -679,8 +680,7 @@ def _boxes_tuple(value):
         raise ValueError(f"initial_boxes: expected lo and hi of shape [N>=1, D], got {lo.shape}")
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
         raise ValueError("initial_boxes: box bounds must be finite")
-    return (tuple(tuple(float(v) for v in row) for row in lo),
-            tuple(tuple(float(v) for v in row) for row in hi))
+    return part.boxes_as_tuples(lo, hi)
 
 
 def _validate_common(cfg):
@@ -827,7 +827,7 @@ def initial_partition(config, env=None, env_params=None):
         >>> initial_partition(HandcraftedConfig(env="labyrinth"))
         Traceback (most recent call last):
         ...
-        ValueError: max_goals: the labyrinth handcrafted partition has 15 boxes; set max_goals >= 15
+        gara_jax.partition.PartitionFullError: max_goals: 15 boxes do not fit in 6
     """
     from envs.layouts import layout_spec
     from gara_jax import partition as part
@@ -851,11 +851,7 @@ def initial_partition(config, env=None, env_params=None):
             state_lo, state_hi = part.state_space(layout_spec(layout)["n"])
             p = part.gara_initial(max_goals=config.max_goals, state_lo=state_lo,
                                   state_hi=state_hi, split_x=config.initial_split_x)
-        else:
-            n_boxes = len(part.layout_boxes(layout, kind)[0])
-            if n_boxes > config.max_goals:
-                raise ValueError(f"max_goals: the {layout} {kind} partition has {n_boxes} boxes; "
-                                 f"set max_goals >= {n_boxes}")
+        else:  # a partition larger than max_goals raises PartitionFullError (max_goals: ...)
             p = part.layout_partition(layout, kind, config.max_goals)
     if refining and config.piece_order == "parent":
         p = p.replace(rank=jnp.arange(config.max_goals, dtype=jnp.int32))

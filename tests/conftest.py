@@ -10,6 +10,14 @@ through ``GARA_JAX_COMPILE_CACHE``, and removes it at the end.
 ``GARA_JAX_COMPILE_CACHE=0 python -m pytest ...`` runs the suite without the cache;
 ``GARA_JAX_COMPILE_CACHE=/some/dir`` keeps it in that folder (not removed), so that a later
 run reuses it.
+
+Most tests run tiny configs for a few hundred steps, so compiling is most of their time: the
+suite compiles with XLA's optimisations off (``jax_disable_most_optimizations``, also passed to
+every subprocess through ``JAX_DISABLE_MOST_OPTIMIZATIONS``), which roughly halves the compile
+time. A module marked ``pytestmark = pytest.mark.optimized`` gets optimised programs: the
+learning tests (whose run time dominates) and those that compare two different programs bit for
+bit (XLA's unoptimised code need not round the same in both). ``GARA_JAX_TEST_OPTIMIZED=1``
+compiles every test optimised, as a user's run does.
 """
 
 from __future__ import annotations
@@ -18,9 +26,28 @@ import os
 import shutil
 import tempfile
 
+import jax
+import pytest
+
 from gara_jax import compile_cache
 
 _OWNED = "_GARA_JAX_TEST_CACHE_OWNED"  # set when this session created (and removes) the folder
+_ALL_OPTIMIZED = os.environ.get("GARA_JAX_TEST_OPTIMIZED") == "1"
+_NO_OPT = "JAX_DISABLE_MOST_OPTIMIZATIONS"
+
+
+def _set_optimized(on: bool) -> None:
+    """Compile from now on with (``on``) or without XLA's optimisations, in this process and in
+    the subprocesses it starts; programs compiled before are dropped from memory, so that no
+    test runs a program compiled the other way (the flag is not part of jit's cache key)."""
+    if jax.config.read("jax_disable_most_optimizations") == (not on):
+        return
+    jax.config.update("jax_disable_most_optimizations", not on)
+    os.environ[_NO_OPT] = "0" if on else "1"
+    jax.clear_caches()
+    from gara_jax import train
+
+    train._build_cached.cache_clear()
 
 
 def pytest_configure(config):
@@ -30,6 +57,15 @@ def pytest_configure(config):
         os.environ[_OWNED] = "1"
     # Inherited by the xdist workers (started after this hook) and by every subprocess.
     compile_cache.enable()
+    _set_optimized(_ALL_OPTIMIZED)
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _xla_optimizations(request):
+    """Optimised compiles for a module marked ``optimized`` (module-scoped and autouse, so it
+    runs before the module's own fixtures compile anything), unoptimised for the others."""
+    _set_optimized(_ALL_OPTIMIZED or request.node.get_closest_marker("optimized") is not None)
+    yield
 
 
 def pytest_unconfigure(config):

@@ -25,6 +25,9 @@ from gara_jax.agents.dqn import DQNConfig
 from gara_jax.algorithms import GaraConfig
 from gara_jax.partition import Partition, gara_initial, handcrafted, locate
 
+# Optimised compiles (tests/conftest.py): two programs are compared bit for bit.
+pytestmark = pytest.mark.optimized
+
 EP, SPE, EPOCHS = 20, 100, 2  # episodes truncate at 20 steps: 5 per epoch, none straddles
 LOW = DQNConfig(loss="all_actions", buffer_size=1000, learning_starts=100)
 CFG = GaraConfig.reference(

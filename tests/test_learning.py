@@ -6,6 +6,9 @@ import pytest
 from gara_jax.algorithms import HandcraftedConfig
 from gara_jax.train import train_many
 
+# Optimised compiles (tests/conftest.py): learning runs, whose run time dominates.
+pytestmark = pytest.mark.optimized
+
 
 @pytest.mark.slow
 def test_handcrafted_reaches_the_exit_greedily_within_120k_steps():

@@ -16,6 +16,9 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+# Optimised compiles (tests/conftest.py): brax's physics runs about 5x slower unoptimised.
+pytestmark = pytest.mark.optimized
+
 import envs
 from envs.maze import state_from_vector
 from envs.point_maze import (

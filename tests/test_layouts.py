@@ -1,0 +1,207 @@
+"""Every maze layout's partitions (SPEC.md 2, 2.1), initial partitions for any box-state
+environment, registered environments, saved partitions, and the new-maze example."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import envs
+from gara_jax import boxes
+from gara_jax import partition as part
+from gara_jax.algorithms import GaraConfig, HandcraftedConfig, HiroConfig, make_algorithm
+from gara_jax.algorithms.gara import initial_partition
+
+LAYOUTS = tuple(part.LAYOUT_PARTITIONS)
+#: Handcrafted boxes per layout (SPEC.md 2.1: labyrinth splits 2 rows into 2 and 2 into 4).
+HANDCRAFTED_COUNTS = {"u_maze": 6, "four_rooms": 4, "u_maze_6": 6, "big_u_maze": 7,
+                      "labyrinth": 15}
+GARA_COUNTS = {"u_maze": 2, "four_rooms": 2, "u_maze_6": 2, "big_u_maze": 3, "labyrinth": 4}
+
+
+def _space(layout):
+    env, params = envs.make(layout)
+    space = env.observation_space(params)
+    return np.asarray(space.low, np.float64), np.asarray(space.high, np.float64)
+
+
+def test_every_layout_has_both_partitions():
+    assert set(LAYOUTS) == set(envs.LAYOUTS)
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_partitions_tile_or_cover_the_observation_space(layout):
+    lo_s, hi_s = _space(layout)
+    g_lo, g_hi = part.layout_boxes(layout, "gara")
+    h_lo, h_hi = part.layout_boxes(layout, "handcrafted")
+    assert len(g_lo) == GARA_COUNTS[layout] and len(h_lo) == HANDCRAFTED_COUNTS[layout]
+    boxes.check_tiles(g_lo, g_hi, lo_s, hi_s)  # GARA refines a tiling
+    if (layout, "handcrafted") in part.OVERLAPPING:
+        boxes.check_covers(h_lo, h_hi, lo_s, hi_s)
+        with pytest.raises(ValueError, match="overlap|volume"):
+            boxes.check_tiles(h_lo, h_hi, lo_s, hi_s)
+    else:
+        boxes.check_tiles(h_lo, h_hi, lo_s, hi_s)
+
+
+def test_labyrinth_handcrafted_splits_and_first_box_on_the_overlap():
+    lo, hi = part.layout_boxes("labyrinth", "handcrafted")
+    # Row 3 ([1,3]x[0.5,6], "vx,vy") becomes 4 boxes at indices 5..8, in the documented order.
+    assert lo[5:9, :2].tolist() == [[1.0, 0.5]] * 4
+    assert [tuple(lo[i, 2:]) + tuple(hi[i, 2:]) for i in range(5, 9)] == [
+        (-1, -1, 0, 0), (-1, 0, 0, 1), (0, -1, 1, 0), (0, 0, 1, 1)]
+    # The last row [5.5,6]x[0,6] is split in vy into the last two boxes.
+    assert lo[13:, 3].tolist() == [-1.0, 0.0] and hi[13:, 3].tolist() == [0.0, 1.0]
+    p = part.layout_partition("labyrinth", "handcrafted", max_goals=16)
+    # A point of the shared strip [5.5,6]x[0,0.5] belongs to the first box holding it: the
+    # "vx" half of [1,6]x[0,0.5] (index 3 for vx < 0, 4 for vx >= 0), not the [5.5,6] column.
+    got = part.locate(p, np.array([[5.8, 0.2, -0.5, 0.3], [5.8, 0.2, 0.5, 0.3],
+                                   [5.8, 3.0, 0.5, 0.3]], np.float32))
+    assert np.asarray(got).tolist() == [3, 4, 14]
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_every_algorithm_initialises_on_every_layout(layout):
+    capacity = max(HANDCRAFTED_COUNTS[layout], 6)
+    configs = (GaraConfig(env=layout), HandcraftedConfig(env=layout, max_goals=capacity),
+               HiroConfig(env=layout))
+    n_goals = {}
+    for cfg in configs:
+        alg = make_algorithm(cfg)
+        state = jax.eval_shape(alg.init, jax.random.key(0))  # traced, not compiled
+        leaves = jax.tree.leaves(state)
+        assert leaves and all(np.all(np.array(leaf.shape) >= 0) for leaf in leaves)
+        if not isinstance(cfg, HiroConfig):
+            n_goals[alg.name] = int(initial_partition(cfg).count)
+    assert n_goals == {"gara": GARA_COUNTS[layout], "handcrafted": HANDCRAFTED_COUNTS[layout]}
+
+
+def test_too_many_boxes_name_max_goals():
+    with pytest.raises(part.PartitionFullError, match="max_goals"):
+        initial_partition(HandcraftedConfig(env="labyrinth"))  # 15 boxes, default capacity 6
+    lo, hi = part.layout_boxes("labyrinth", "handcrafted")
+    with pytest.raises(ValueError, match="max_goals: 15 initial_boxes"):
+        HandcraftedConfig(env="labyrinth", initial_boxes=(lo, hi))
+
+
+def test_initial_boxes_are_validated_against_the_observation_space():
+    lo, hi = part.state_space(3.0)
+    half_hi = hi.copy()
+    half_hi[0] = 1.5
+    with pytest.raises(ValueError, match="initial_boxes: boxes do not cover"):
+        initial_partition(GaraConfig(initial_boxes=([lo], [half_hi])))
+    with pytest.raises(ValueError, match="initial_boxes: no box contains"):
+        initial_partition(HandcraftedConfig(initial_boxes=([lo], [half_hi])))
+    with pytest.raises(ValueError, match=r"initial_boxes: expected boxes of shape \[N, 4\]"):
+        initial_partition(GaraConfig(initial_boxes=([[0.0, 0.0]], [[3.0, 3.0]])))
+    with pytest.raises(ValueError, match="initial_boxes: must be a pair"):
+        GaraConfig(initial_boxes=lo)
+    with pytest.raises(ValueError, match="initial_boxes"):
+        GaraConfig(initial_boxes=([lo], [lo - 1]))  # hi below lo
+    with pytest.raises(ValueError, match="initial_boxes: box bounds must be finite"):
+        GaraConfig(initial_boxes=([lo], [np.full(4, np.inf)]))
+    # Overlapping boxes cover but do not tile: Handcrafted takes them, GARA refuses them.
+    both = ([lo, lo], [hi, half_hi])
+    assert int(initial_partition(HandcraftedConfig(initial_boxes=both)).count) == 2
+    with pytest.raises(ValueError, match="initial_boxes"):
+        initial_partition(GaraConfig(initial_boxes=both))
+
+
+def test_initial_split_x_is_checked_against_the_layout():
+    with pytest.raises(ValueError, match="initial_split_x"):
+        GaraConfig(env="u_maze", initial_split_x=4.0)
+    assert int(initial_partition(GaraConfig(env="u_maze_6", initial_split_x=4.0)).count) == 2
+    with pytest.raises(ValueError, match="initial_split_x"):
+        GaraConfig(initial_split_x=1.0, initial_boxes=part.layout_boxes("u_maze", "gara"))
+
+
+def test_register_and_unknown_names():
+    envs.register("u_maze_50_steps", lambda **o: envs.make("u_maze", **{"max_steps": 50, **o}))
+    assert "u_maze_50_steps" in envs.names()
+    assert envs.make("u_maze_50_steps")[1].max_steps == 50
+    with pytest.raises(ValueError, match="built-in"):
+        envs.register("u_maze", envs.make)
+    with pytest.raises(ValueError, match="factory"):
+        envs.register("x_maze", 3)
+    with pytest.raises(ValueError, match="env: unknown environment 'x_maze'"):
+        GaraConfig(env="x_maze")
+    # A registered environment has no built-in partition: the error asks for the boxes.
+    with pytest.raises(ValueError, match="initial_boxes: environment 'u_maze_50_steps' has no"):
+        initial_partition(GaraConfig(env="u_maze_50_steps"))
+    cfg = GaraConfig(env="u_maze_50_steps", initial_boxes=part.layout_boxes("u_maze", "gara"))
+    assert int(initial_partition(cfg).count) == 2
+
+
+def test_saved_partition_starts_another_run(tmp_path):
+    """The transfer experiment's plumbing: save a partition, start a config from it."""
+    p = part.layout_partition("labyrinth", "gara", max_goals=8)
+    # Box 0 is [0,3]x[0,3]: cut it at x = 1.5, as a split would.
+    p, _ = part.replace_box(p, 0, np.array([[0, 0, -1, -1], [1.5, 0, -1, -1]], np.float32),
+                            np.array([[1.5, 3, 1, 1], [3, 3, 1, 1]], np.float32))
+    path = tmp_path / "partition.json"
+    part.save_boxes(path, p)
+    data = json.loads(path.read_text())
+    assert len(data["lo"]) == 5
+    cfg = GaraConfig(env="labyrinth", initial_boxes=part.load_boxes(path))
+    again = initial_partition(cfg)
+    np.testing.assert_array_equal(np.asarray(again.boxes()[0]), np.asarray(p.boxes()[0]))
+    path.write_text(json.dumps({"lo": []}))
+    with pytest.raises(ValueError, match="keys 'lo' and 'hi'"):
+        part.load_boxes(path)
+
+
+@settings(max_examples=60, deadline=None)
+@given(cuts=st.lists(st.sampled_from([0.5, 1.0, 1.5, 2.0, 2.5]), min_size=0, max_size=3,
+                     unique=True),
+       drop=st.integers(0, 8), grow=st.integers(0, 8))
+def test_check_covers_agrees_with_dense_sampling(cuts, drop, grow):
+    """Boxes from a grid over [0,3]^2, one possibly dropped and one possibly grown into its
+    neighbour: ``check_covers`` passes exactly when every point of a fine grid is covered."""
+    edges = np.array(sorted({0.0, 3.0, *cuts}))
+    lo = np.array([(a, b) for a in edges[:-1] for b in edges[:-1]], np.float64)
+    hi = np.array([(a, b) for a in edges[1:] for b in edges[1:]], np.float64)
+    if drop < len(lo) and len(lo) > 1:
+        lo, hi = np.delete(lo, drop, 0), np.delete(hi, drop, 0)
+    if grow < len(lo):
+        hi[grow] = np.minimum(hi[grow] + 0.5, 3.0)  # overlaps its neighbour: still a cover
+    fine = np.linspace(0.05, 2.95, 30)
+    points = np.stack(np.meshgrid(fine, fine, indexing="ij"), -1).reshape(-1, 2)
+    covered = np.all(np.any(np.all((lo <= points[:, None]) & (points[:, None] <= hi), -1), -1))
+    try:
+        boxes.check_covers(lo, hi, [0.0, 0.0], [3.0, 3.0])
+        passed = True
+    except ValueError as err:
+        assert "no box contains the point" in str(err)
+        passed = False
+    assert passed == covered
+
+
+def _example():
+    path = Path(__file__).resolve().parents[1] / "examples" / "new_maze.py"
+    spec = importlib.util.spec_from_file_location("new_maze_example", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_new_maze_example_runs(tmp_path):
+    example = _example()
+    out = example.main(["--seeds", "2", "--steps", "600", "--steps-per-epoch", "300",
+                        "--out", str(tmp_path)])
+    assert out["training"]["n"] == 2 and out["greedy"]["n"] == 2
+    assert 0.0 <= out["greedy"]["mean"] <= 1.0
+    assert all(g >= 2 for g in out["goals"]) and out["seed_drawn"] in (0, 1)
+    saved = part.load_boxes(tmp_path / "final_partition.json")
+    assert len(saved[0]) in out["goals"]
+    # The saved boxes tile the zigzag maze's observation space (they can start another run).
+    env, params = example.make_zigzag()
+    space = env.observation_space(params)
+    boxes.check_tiles(np.array(saved[0]), np.array(saved[1]), space.low, space.high)
+    assert (tmp_path / "partition.png").stat().st_size > 0

@@ -77,8 +77,20 @@ LAST_STEPS = 30_000  # the final training success counts the episodes ending in 
 EPISODE_WINDOW = (300, 400)  # the last quarter of the reference's 400-episode run
 CURVE_EPISODES, CURVE_WINDOW = 400, 30  # the paper's curve: 400 episodes, 30-episode average
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
-ENVS = ("u_maze", "point_u_maze")  # the U-maze environments the partitions are defined for
-ENV_TITLES = {"u_maze": "the U-shaped maze", "point_u_maze": "the U-shaped maze (brax ball)"}
+#: Environments ``--env`` takes: the paper's U-maze, its brax twin, then SPEC.md's other layouts
+#: (their Handcrafted and initial GARA partitions: SPEC.md 2.1).
+ENVS = ("u_maze", "point_u_maze", "four_rooms", "u_maze_6", "big_u_maze", "labyrinth")
+ENV_TITLES = {"u_maze": "the U-shaped maze", "point_u_maze": "the U-shaped maze (brax ball)",
+              "four_rooms": "the four-rooms maze", "u_maze_6": "the U-maze of size 6",
+              "big_u_maze": "the big U-maze", "labyrinth": "the labyrinth"}
+#: Default steps per seed of each environment, the same for every method: the paper's 120,000
+#: on the U-mazes; on the other layouts the paper's ratio to what Handcrafted needs (120,000 is
+#: 10 x the 12,000 steps after which Handcrafted's seed-mean greedy success reaches 0.8 on the
+#: U-maze), so 10 x that number measured on each layout, rounded up to 30,000 steps, at most
+#: 600,000 (big_u_maze and labyrinth: Handcrafted does not reach 0.8 within 600,000 steps).
+#: docs/mazes.md has the measurements.
+ENV_STEPS = {"u_maze": 120_000, "point_u_maze": 120_000, "four_rooms": 270_000,
+             "u_maze_6": 330_000, "big_u_maze": 600_000, "labyrinth": 600_000}
 PARTITION_STEPS = (0, 1_000, 30_000)  # the paper's panels; the run's end is added
 
 
@@ -115,6 +127,8 @@ def method_config(method: str, *, env: str = "u_maze", steps_per_epoch: int | No
                      low=unclipped, high=dataclasses.replace(DDPG_PAPER, actor_output="box"),
                      **kw)}
     overrides = {"env": env}
+    if method == "handcrafted":  # room for the layout's boxes (the labyrinth has 15)
+        overrides["max_goals"] = max(HandcraftedConfig().max_goals, handcrafted_boxes(env))
     if steps_per_epoch is not None:
         overrides["steps_per_epoch"] = steps_per_epoch
     if eval_episodes is not None:
@@ -122,17 +136,32 @@ def method_config(method: str, *, env: str = "u_maze", steps_per_epoch: int | No
     return factories[method](**overrides)
 
 
+def handcrafted_boxes(env: str) -> int:
+    """How many boxes the Handcrafted partition of ``env`` has (SPEC.md 2, 2.1).
+
+    Example:
+        >>> handcrafted_boxes("labyrinth"), handcrafted_boxes("point_u_maze")
+        (15, 6)
+    """
+    from gara_jax import partition
+
+    layout = "u_maze" if env == "point_u_maze" else env
+    return len(partition.layout_boxes(layout, "handcrafted")[0])
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     """The options of ``gara-jax reproduce`` (shared with ``python -m experiments.u_maze``)."""
     p.add_argument("--seeds", type=int, default=None, help="seeds per method (default 20)")
     p.add_argument("--steps", type=int, default=None,
-                   help="environment steps per seed (default 120000, rounded up to epochs)")
+                   help="environment steps per seed, rounded up to epochs (default: the "
+                        "environment's budget, 120000 on the U-maze)")
     p.add_argument("--methods", default=",".join(DEFAULT_METHODS),
                    help=f"comma-separated subset of {','.join(METHODS)}, or 'all' "
                         f"(the default, hiro and the two gara_reference_results methods; "
                         f"default: {','.join(DEFAULT_METHODS)})")
     p.add_argument("--env", default="u_maze", choices=ENVS,
-                   help="u_maze (kinematic, the paper's) or point_u_maze (brax rigid body)")
+                   help="u_maze (kinematic, the paper's), point_u_maze (brax rigid body) or "
+                        "another maze layout of SPEC.md")
     p.add_argument("--out", default=None, help="output directory (default results/ENV)")
     p.add_argument("--quick", action="store_true",
                    help=f"a first look: {QUICK['seeds']} seeds, {QUICK['steps']} steps, "
@@ -166,7 +195,7 @@ def _apply_defaults(args: argparse.Namespace) -> argparse.Namespace:
     if args.seeds is None:
         args.seeds = QUICK["seeds"] if args.quick else 20
     if args.steps is None:
-        args.steps = QUICK["steps"] if args.quick else 120_000
+        args.steps = QUICK["steps"] if args.quick else ENV_STEPS[args.env]
     if args.steps_per_epoch is None and args.quick:
         args.steps_per_epoch = QUICK["steps_per_epoch"]
     args.eval_episodes = QUICK["eval_episodes"] if args.quick else None

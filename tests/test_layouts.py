@@ -205,3 +205,54 @@ def test_new_maze_example_runs(tmp_path):
     space = env.observation_space(params)
     boxes.check_tiles(np.array(saved[0]), np.array(saved[1]), space.low, space.high)
     assert (tmp_path / "partition.png").stat().st_size > 0
+
+
+def test_reproduce_takes_every_layout_with_its_budget(capsys):
+    from experiments import u_maze
+
+    assert set(u_maze.ENVS) == {*envs.LAYOUTS, "point_u_maze"} == set(u_maze.ENV_STEPS)
+    cfg = u_maze.method_config("handcrafted", env="labyrinth")
+    assert cfg.max_goals == 15 and int(initial_partition(cfg).count) == 15
+    assert u_maze.main(["--env", "u_maze_6", "--methods", "all", "--dry-run"]) == 0
+    plan = capsys.readouterr().out
+    assert "environment: u_maze_6" in plan
+    assert f"steps: {u_maze.ENV_STEPS['u_maze_6']:,} per seed" in plan
+
+
+def test_mazes_study_quick_run_writes_its_files(tmp_path, capsys):
+    from experiments import mazes
+
+    assert mazes.main(["--dry-run", "--seeds", "3"]) == 0
+    plan = capsys.readouterr().out
+    assert plan.count("\n") == 1 + len(mazes.MAZES) * len(mazes.METHODS)
+    argv = ["--quick", "--steps", "1000", "--mazes", "four_rooms", "--no-progress",
+            "--methods", "gara,gara_no_refinement", "--out", str(tmp_path)]
+    assert mazes.main(argv) == 0
+    runs = json.loads((tmp_path / "mazes.json").read_text())["runs"]["four_rooms"]
+    assert set(runs) == {"gara", "gara_no_refinement"}
+    assert runs["gara_no_refinement"]["config"]["min_steps"] == 10**9
+    for run in runs.values():
+        s = run["summary"]
+        assert s["greedy_end"]["n"] == 2 and len(s["per_seed"]["greedy_last10"]) == 2
+        assert len(run["final_partitions"]) == 2
+        assert len(s["curves"]["env_steps"]) == 1 and len(s["curves"]["train"]) == mazes.CURVE_POINTS
+    assert runs["gara_no_refinement"]["summary"]["splits"] == 0.0
+    table = (tmp_path / "table.md").read_text()
+    assert "gara − no refinement (paired)" in table and "| four_rooms | `gara` | 1,000 |" in table
+    for name in ("mazes_success.png", "mazes_partitions.png"):
+        assert (tmp_path / name).stat().st_size > 0
+    # A second call finds both runs in mazes.json and trains nothing again.
+    before = (tmp_path / "mazes.json").stat().st_mtime_ns
+    assert mazes.main(argv) == 0
+    assert (tmp_path / "mazes.json").stat().st_mtime_ns == before
+
+
+def test_mazes_study_rejects_bad_names():
+    from experiments import mazes
+
+    with pytest.raises(SystemExit):
+        mazes.parse_args(["--mazes", "x_maze"])
+    with pytest.raises(SystemExit):
+        mazes.parse_args(["--methods", "gara,gara"])
+    with pytest.raises(ValueError, match="method"):
+        mazes.method_config("hiro_x", "u_maze")

@@ -88,6 +88,30 @@ def test_x_translation_matches_hand_computation(dx, t0, t1):
         assert (lo[:, 1:] == start_lo[1:]).all() and (hi[:, 1:] == start_hi[1:]).all()
 
 
+@pytest.mark.parametrize("margin", [0.0625, 0.125])
+def test_target_margin_measures_coverage_inside_the_target(margin):
+    """With ``target_margin`` the coverage is that of ``G_d`` shrunk by ``margin`` of its width
+    on every side: the hand computation with the shrunk x-interval (the x-only model's other
+    outputs, 0.5, lie inside the shrunk y and velocity ranges; margins whose bounds float32
+    holds exactly)."""
+    start_lo, start_hi = np.array([0.0, 0, -1, -1]), np.array([4.0, 3, 1, 1])
+    t_lo, t_hi = np.array([2.0, 0, -1, -1]), np.array([3.5, 3, 1, 1])
+    net = translation_net([1.0, 0, 0, 0], x_only=True)
+    res = refine(net, start_lo, start_hi, t_lo, t_hi, target_margin=margin)
+    inset = margin * 1.5
+    want_reach, want_miss = expected_1d(0.0, 4.0, 1.0, 2.0 + inset, 3.5 - inset)
+    assert x_intervals(res.reaching_lo, res.reaching_hi) == want_reach
+    assert x_intervals(res.nonreaching_lo, res.nonreaching_hi) == want_miss
+    plain = refine(net, start_lo, start_hi, t_lo, t_hi)
+    assert x_intervals(plain.reaching_lo, plain.reaching_hi) == expected_1d(
+        0.0, 4.0, 1.0, 2.0, 3.5)[0]
+    # Every dimension shrinks: at 0.25 the y range is [0.75, 2.25], which the predicted
+    # y = 0.5 misses, so nothing reaches.
+    assert len(refine(net, start_lo, start_hi, t_lo, t_hi, target_margin=0.25).reaching_lo) == 0
+    with pytest.raises(ValueError, match="target_margin"):
+        refine(net, start_lo, start_hi, t_lo, t_hi, target_margin=0.5)
+
+
 def test_constant_outside_target_never_reaches():
     # The x-only model outputs y = 0.5, outside the target's y range [2, 3]: R misses G_d.
     res = refine(translation_net([1.0, 0, 0, 0], x_only=True), np.zeros(4), np.ones(4),

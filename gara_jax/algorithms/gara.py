@@ -383,6 +383,14 @@ class GaraConfig(HandcraftedConfig):
             ``c1 = c2 = 0``. ``"results"`` (the version that made their result files): such a
             dimension is left out of all three volumes, so a prediction that stops short of
             ``G_d`` in ``x`` but lies inside it in ``y, vx, vy`` counts as reaching it.
+        target_margin: this project's option, not the authors' (0, their rule): the analysis
+            measures coverage against ``G_d`` shrunk on every side by this fraction of its
+            width in each dimension, so a predicted box must lie that far inside ``G_d`` to
+            count as reaching it. Aimed at the wall-face effect above: a low level that runs
+            into a wall ends exactly on a face of the closed box behind it (the U-maze's
+            ``x = 1``), and a forward model whose prediction lies within its error of that
+            face, half of it past the face, is not far from counting as entering that box;
+            with a margin it does not. Must lie in ``[0, 0.5)``.
         q_rows_after_split: the Q rows of a split's pieces (SPEC.md sections 3.6 and 3.9.3).
             ``"copied"``: every piece's row is a copy of ``G_s``'s, and only the non-reaching
             pieces' ``Q[piece, d]`` are set to 0 (this project's first reading of 3.6). In
@@ -484,6 +492,7 @@ class GaraConfig(HandcraftedConfig):
     piece_order: str = "appended"
     initial_split_x: float | None = None
     coverage: str = "final"
+    target_margin: float = 0.0
     q_rows_after_split: str = "copied"
     pair_counts: str = "memory"
     records_after_split: str = "cleared"
@@ -531,6 +540,10 @@ class GaraConfig(HandcraftedConfig):
                                      f"maze's x range (0, {n:g}), got {self.initial_split_x}")
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
         _one_of(self, "coverage", COVERAGE_RULES)
+        if not (isinstance(self.target_margin, int | float) and not isinstance(
+                self.target_margin, bool) and 0.0 <= self.target_margin < 0.5):
+            raise ValueError(f"target_margin: must be a number in [0, 0.5), got "
+                             f"{self.target_margin!r}")
         _one_of(self, "q_rows_after_split", Q_ROWS_AFTER_SPLIT)
         _one_of(self, "pair_counts", PAIR_COUNTS)
         _one_of(self, "records_after_split", RECORDS_AFTER_SPLIT)

@@ -78,8 +78,9 @@ def _gradient_smear(layers, pre, lo, hi, dim):
     return grad * (hi - lo)[:, :dim]
 
 
-def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, method, coverage="final"):
-    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job."""
+def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final"):
+    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job; the coverage is
+    measured against ``G_d`` shrunk by ``margin`` times its width on every side."""
     n = s_lo.shape[0]
     dim = s_lo.shape[1]
     goal_lo = jnp.broadcast_to(t_lo, (n, dim))
@@ -93,13 +94,14 @@ def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, method, coverage="final"):
                for (l1, u1), (l2, u2) in zip(pre, crown_preactivations(layers, lo, hi),
                                              strict=True)]
     r_lo, r_hi = pre[-1]
-    c1, c2 = boxes.coverage(r_lo, r_hi, t_lo, t_hi, rule=coverage)
+    inset = margin * (t_hi - t_lo)
+    c1, c2 = boxes.coverage(r_lo, r_hi, t_lo + inset, t_hi - inset, rule=coverage)
     smear = _gradient_smear(layers, pre, lo, hi, dim)
     return c1, c2, smear
 
 
-def _analyse(layers, s_lo, s_hi, t_lo, t_hi, method, coverage="final"):
-    return jax.vmap(lambda *a: _analyse_job(*a, method, coverage))(
+def _analyse(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final"):
+    return jax.vmap(lambda *a: _analyse_job(*a, margin, method, coverage))(
         layers, s_lo, s_hi, t_lo, t_hi)
 
 
@@ -157,7 +159,7 @@ def _collect(tree, dim, dtype, n_analysed, depth) -> RefineResult:
 def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
                 tau2: float = 0.1, min_volume_ratio: float = 0.05,
                 method: str = "crown", small_box_c1: float | None = None,
-                coverage: str = "final") -> list[RefineResult]:
+                coverage: str = "final", target_margin: float = 0.0) -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -175,6 +177,9 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         coverage: the coverage rule, ``"final"`` or ``"results"``: what a dimension where
             ``R`` and ``G_d`` do not intersect does (:func:`gara_jax.boxes.coverage`; SPEC.md
             sections 3.6 and 3.9.2).
+        target_margin: the coverage is measured against ``G_d`` shrunk on every side by this
+            fraction of its width in each dimension (``[0, 0.5)``; 0: ``G_d`` itself). The
+            forward model's goal inputs stay ``G_d``'s bounds.
 
     Returns:
         One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
@@ -201,6 +206,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         raise ValueError(f"small_box_c1: must be None or lie in [0, 1], got {small_box_c1}")
     if coverage not in boxes.COVERAGE_RULES:
         raise ValueError(f"coverage: must be one of {boxes.COVERAGE_RULES}, got {coverage!r}")
+    if not 0.0 <= target_margin < 0.5:
+        raise ValueError(f"target_margin: must lie in [0, 0.5), got {target_margin}")
     layers = _stacked_layers(stacked_layers)
     s_lo, s_hi = boxes.validate_boxes(start_lo, start_hi, "start_lo/start_hi")
     t_lo, t_hi = boxes.validate_boxes(target_lo, target_hi, "target_lo/target_hi")
@@ -242,7 +249,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 b_lo[j, i], b_hi[j, i] = trees[j][n]["lo"], trees[j][n]["hi"]
         c1, c2, smear = jax.device_get(_analyse_jit(
             layers_pad, jnp.asarray(b_lo, net_dtype), jnp.asarray(b_hi, net_dtype),
-            t_lo_pad, t_hi_pad, method=method, coverage=coverage))
+            t_lo_pad, t_hi_pad, jnp.asarray(target_margin, net_dtype), method=method,
+            coverage=coverage))
         new_frontier = [[] for _ in range(n_jobs)]
         for j, nodes in enumerate(frontier):
             tree = trees[j]
@@ -281,7 +289,7 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
 def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
            tau2: float = 0.1, min_volume_ratio: float = 0.05,
            method: str = "crown", small_box_c1: float | None = None,
-           coverage: str = "final") -> RefineResult:
+           coverage: str = "final", target_margin: float = 0.0) -> RefineResult:
     """Split the start box ``G_s`` into boxes that reach ``G_d`` and boxes that do not.
 
     The single-job form of :func:`refine_many`; ``layers_or_params`` is one forward model (a
@@ -310,4 +318,5 @@ def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: 
             f"start_lo/target_lo: expected matching shapes [D], got {s_lo.shape}, {t_lo.shape}")
     return refine_many(stacked, s_lo[None], s_hi[None], t_lo[None], t_hi[None], tau1=tau1,
                        tau2=tau2, min_volume_ratio=min_volume_ratio, method=method,
-                       small_box_c1=small_box_c1, coverage=coverage)[0]
+                       small_box_c1=small_box_c1, coverage=coverage,
+                       target_margin=target_margin)[0]

@@ -1,0 +1,325 @@
+"""GARA across the mazes: every layout of SPEC.md, five methods, both success measures.
+
+For each maze of :data:`MAZES` and each method of :data:`METHODS` (20 seeds by default, all of
+a method in one process through :func:`gara_jax.train.train_many`):
+
+- ``gara``: ``GaraConfig()``, this project's default GARA (Q-learning high level);
+- ``gara_no_refinement``: the same agent with the analysis never run (``min_steps=10**9``;
+  the ablation's ``default-refinement``): its initial goals throughout. Not GARA; it measures
+  what the learned abstraction adds;
+- ``handcrafted``: ``HandcraftedConfig()`` on the authors' partition of the layout (SPEC.md 2.1);
+- ``hiro``: ``HiroConfig()``, HIRO as published;
+- ``hiro_paper``: ``HiroConfig.paper()``, the HIRO baseline the paper ran.
+
+``--methods`` also takes the GARA variants of :data:`VARIANTS` (the refinement study: one
+mechanism of ``GaraConfig()`` changed each).
+
+Every method of a maze gets the same step budget, :data:`experiments.u_maze.ENV_STEPS` (set
+from what Handcrafted needs on that maze; ``docs/mazes.md`` says how). Each run is summarised
+as in :mod:`experiments.gara_ablation` (training success over episodes 300-399 and over the
+last 30,000 steps, greedy success at the end and over the last 10 evaluations, goals,
+analyses, splits, each with a 95% t-interval over seeds), and GARA is compared with its
+refinement-off variant seed by seed (``paired``: the mean difference and its interval).
+
+Writes to ``--out`` (default ``results/mazes``):
+
+- ``mazes.json``: every run's summary, per-seed values, seed-mean curves and final partitions,
+  rewritten after each run; a run already there with the same seeds and steps is not run
+  again (``--rerun`` runs it again), so an interrupted study continues where it stopped;
+- ``table.md``: the markdown table (also printed);
+- ``mazes_success.png``: a row per maze: training success by steps, greedy success by steps
+  (seed means with 95% bands);
+- ``mazes_partitions.png``: GARA's final partition on each maze, of the seed that
+  :func:`experiments.u_maze.partition_seed` picks (the successful seed with the median final
+  goal count).
+
+Usage::
+
+    python -m experiments.mazes                           # everything, 20 seeds each
+    python -m experiments.mazes --mazes u_maze,four_rooms --methods gara,gara_no_refinement
+    python -m experiments.mazes --quick                   # 2 seeds, 3,000 steps: a first look
+    python -m experiments.mazes --dry-run                 # the plan; nothing trained
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+MAZES = ("u_maze", "four_rooms", "u_maze_6", "big_u_maze", "labyrinth")
+METHODS = ("gara", "gara_no_refinement", "handcrafted", "hiro", "hiro_paper")
+#: GARA variants for the refinement study, each ``GaraConfig()`` with one mechanism changed
+#: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides).
+VARIANTS = {
+    "gara+target_margin": ("coverage measured 10% inside G_d on every side, so a prediction "
+                           "on a wall face of G_d does not count as entering it "
+                           "(target_margin=0.1)", {"target_margin": 0.1}),
+    "gara+per_job_model": ("a fresh forward model per analysis, fitted until its loss is "
+                           "stable (forward_model='per_job')", {"forward_model": "per_job"}),
+    "gara+episode_cadence": ("the trigger, forward-model step and analysis after every "
+                             "episode (cadence='episode')", {"cadence": "episode"}),
+}
+ALL_METHODS = METHODS + tuple(VARIANTS)
+QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
+CURVE_POINTS = 60  # points of the training-success-by-steps curve stored per run
+TRAIN_WINDOW = 9000  # steps of the training-success window (as in the paper's figure (b))
+
+
+def method_config(method: str, maze: str, steps_per_epoch=None, eval_episodes=None):
+    """The config of ``method`` on ``maze`` (see the module docstring).
+
+    Example:
+        >>> method_config("gara_no_refinement", "four_rooms").min_steps
+        1000000000
+    """
+    from experiments import u_maze
+
+    if method not in ALL_METHODS:
+        raise ValueError(f"method: {method!r} is not one of {', '.join(ALL_METHODS)}")
+    base = "gara" if method == "gara_no_refinement" or method in VARIANTS else method
+    config = u_maze.method_config(base, env=maze, steps_per_epoch=steps_per_epoch,
+                                  eval_episodes=eval_episodes)
+    if method == "gara_no_refinement":
+        config = dataclasses.replace(config, min_steps=10**9)
+    if method in VARIANTS:
+        config = dataclasses.replace(config, **VARIANTS[method][1])
+    return config
+
+
+def summarize(result, total_steps: int) -> dict:
+    """A run's summary (:func:`experiments.gara_ablation.summarize_run`) and its curves."""
+    from experiments.gara_ablation import summarize_run
+    from gara_jax import results as R
+
+    m = result.metrics
+    steps = m["env_steps"][0]
+    grid = np.linspace(steps[-1] / CURVE_POINTS, steps[-1], CURVE_POINTS).round().astype(int)
+    greedy_mean, greedy_ci = R.mean_ci95(m["eval_success"], axis=0)
+    train_mean, train_ci = R.step_success_curve(result.episodes, grid, TRAIN_WINDOW)
+    out = summarize_run(result, total_steps)
+    out["curves"] = {"env_steps": steps.tolist(), "greedy": greedy_mean.round(4).tolist(),
+                     "greedy_ci95": greedy_ci.round(4).tolist(), "train_steps": grid.tolist(),
+                     "train": np.round(train_mean, 4).tolist(),
+                     "train_ci95": np.round(train_ci, 4).tolist()}
+    return out
+
+
+def paired(a: dict, b: dict, measure: str) -> dict:
+    """``a - b`` seed by seed for one per-seed ``measure`` of two summaries: mean and 95%
+    interval (seeds without a value in either are left out).
+
+    Example:
+        >>> x = {"per_seed": {"m": [1.0, 0.5, 1.0]}}; y = {"per_seed": {"m": [0.5, 0.5, 0.5]}}
+        >>> paired(x, y, "m")["mean"]
+        0.3333333333333333
+    """
+    from gara_jax.results import ci_summary
+
+    d = np.asarray(a["per_seed"][measure], float) - np.asarray(b["per_seed"][measure], float)
+    return ci_summary(d)
+
+
+def _fmt(s) -> str:
+    return "-" if not s or s.get("mean") is None else f"{s['mean']:.2f} ± {s['ci95']:.2f}"
+
+
+def table(runs: dict) -> str:
+    """The markdown table of ``runs`` (``maze -> method -> run``), with the paired rows."""
+    lines = ["| maze | method | steps | training, ep. 300-399 | training, last 30k steps "
+             "| greedy, end | greedy, last 10 evals | goals | analyses | splits |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for maze, methods in runs.items():
+        for method, run in methods.items():
+            s = run["summary"]
+            lines.append(
+                f"| {maze} | `{method}` | {run['steps']:,} | {_fmt(s['train_ep300_400'])} | "
+                f"{_fmt(s['train_last30k'])} | {_fmt(s['greedy_end'])} | "
+                f"{_fmt(s['greedy_last10'])} | {s['goals_end']:.1f} | {s['analysed']:.1f} | "
+                f"{s['splits']:.1f} |")
+        pairs = [("gara", "gara_no_refinement", "gara − no refinement")]
+        pairs += [(v, "gara", f"{v} − gara") for v in VARIANTS]
+        for first, second, label in pairs:
+            if first in methods and second in methods:
+                a, b = methods[first]["summary"], methods[second]["summary"]
+                cells = " | ".join(_fmt(paired(a, b, k)) for k in (
+                    "train_ep300_400", "train_last30k", "greedy_end", "greedy_last10"))
+                lines.append(f"| {maze} | {label} (paired) | | {cells} | | | |")
+    return "\n".join(lines)
+
+
+def plot(runs: dict, out: Path) -> None:
+    """``mazes_success.png`` and, where GARA ran, ``mazes_partitions.png``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    import envs
+    from experiments.u_maze import partition_seed
+    from gara_jax import plots
+
+    mazes = list(runs)
+    fig, axes = plt.subplots(len(mazes), 2, figsize=(10, 3.0 * len(mazes)), dpi=110,
+                             squeeze=False)
+    for row, maze in zip(axes, mazes, strict=True):
+        for method, run in runs[maze].items():
+            c = run["summary"]["curves"]
+            for ax, (x, y, ci) in zip(row, ((c["train_steps"], c["train"], c["train_ci95"]),
+                                            (c["env_steps"], c["greedy"], c["greedy_ci95"])),
+                                      strict=True):
+                y, ci = np.asarray(y, float), np.asarray(ci, float)
+                line, = ax.plot(x, y, label=method, linewidth=1.4)
+                ax.fill_between(x, np.clip(y - ci, 0, 1), np.clip(y + ci, 0, 1),
+                                color=line.get_color(), alpha=0.15, linewidth=0)
+        row[0].set(title=f"{maze}: training success ({TRAIN_WINDOW:,}-step window)",
+                   ylim=(-0.02, 1.02), xlabel="environment steps")
+        row[1].set(title=f"{maze}: greedy success", ylim=(-0.02, 1.02),
+                   xlabel="environment steps")
+        for ax in row:
+            ax.grid(alpha=0.3)
+            ax.title.set_fontsize(9)
+    handles, labels = axes[0][1].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.tight_layout(rect=(0, 0.03, 1, 1))
+    fig.savefig(out / "mazes_success.png")
+    plt.close(fig)
+
+    with_gara = [m for m in mazes if "gara" in runs[m] and runs[m]["gara"]["final_partitions"]]
+    if not with_gara:
+        return
+    fig, axes = plt.subplots(1, len(with_gara), figsize=(3.4 * len(with_gara), 3.8), dpi=110,
+                             squeeze=False)
+    for ax, maze in zip(axes[0], with_gara, strict=True):
+        run = runs[maze]["gara"]
+        per_seed = run["summary"]["per_seed"]
+        record = {"metrics": {"eval_success": [per_seed["greedy_end"]],
+                              "n_goals": [per_seed["goals_end"]]}}
+        seed, _ = partition_seed(record)
+        lo, hi = (np.asarray(b) for b in run["final_partitions"][seed])
+        plots.draw_partition(ax, lo, hi, len(lo), envs.make(maze)[1],
+                             title=f"{maze}: seed {seed}, {len(lo)} goals")
+    fig.suptitle("GARA's final partitions (the successful seed with the median goal count)",
+                 fontsize=10)
+    fig.tight_layout()
+    fig.savefig(out / "mazes_partitions.png")
+    plt.close(fig)
+
+
+def parse_args(argv=None):
+    p = argparse.ArgumentParser(prog="python -m experiments.mazes",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--mazes", default=",".join(MAZES), help="comma-separated subset of "
+                   f"{','.join(MAZES)}")
+    p.add_argument("--methods", default=",".join(METHODS), help="comma-separated subset of "
+                   f"{','.join(ALL_METHODS)} (default: {','.join(METHODS)}; the gara+ variants "
+                   "change one mechanism of GaraConfig(), see VARIANTS)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per run (default 20)")
+    p.add_argument("--steps", type=int, default=None,
+                   help="steps per seed for every maze (default: each maze's budget)")
+    p.add_argument("--out", default="results/mazes", help="output directory")
+    p.add_argument("--quick", action="store_true", help=f"a first look: {QUICK['seeds']} "
+                   f"seeds, {QUICK['steps']:,} steps, {QUICK['steps_per_epoch']}-step epochs")
+    p.add_argument("--rerun", action="store_true", help="run again what --out already holds")
+    p.add_argument("--dry-run", action="store_true", help="print the plan; train nothing")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    from gara_jax import compile_cache
+
+    compile_cache.add_argument(p)
+    args = p.parse_args(argv)
+    for name, valid in (("mazes", MAZES), ("methods", ALL_METHODS)):
+        chosen = [v.strip() for v in getattr(args, name).split(",") if v.strip()]
+        bad = [v for v in chosen if v not in valid]
+        if not chosen or bad or len(set(chosen)) != len(chosen):
+            p.error(f"--{name}: {bad or getattr(args, name)!r} invalid or repeated; choose "
+                    f"from {', '.join(valid)}")
+        setattr(args, name, chosen)
+    args.seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if args.quick else 20)
+    if args.seeds < 1 or (args.steps is not None and args.steps < 1):
+        p.error("--seeds and --steps must be >= 1")
+    return args
+
+
+def steps_for(args, maze: str) -> int:
+    from experiments.u_maze import ENV_STEPS
+
+    if args.steps is not None:
+        return args.steps
+    return QUICK["steps"] if args.quick else ENV_STEPS[maze]
+
+
+def main(argv=None) -> int:
+    args = parse_args(argv)
+    spe = QUICK["steps_per_epoch"] if args.quick else None
+    evals = QUICK["eval_episodes"] if args.quick else None
+    out = Path(args.out)
+    plan = [(maze, method, steps_for(args, maze)) for maze in args.mazes
+            for method in args.methods]
+    if args.dry_run:
+        print(f"python -m experiments.mazes --dry-run: {len(plan)} runs of {args.seeds} seeds "
+              f"(nothing is trained or written), to {out}/")
+        for maze, method, steps in plan:
+            config = method_config(method, maze, spe, evals)
+            print(f"  {maze:11s} {method:19s} {type(config).__name__}, {steps:,} steps per seed")
+        return 0
+
+    from gara_jax import compile_cache
+
+    compile_cache.setup(args.no_compile_cache)
+    from gara_jax.results import write_json
+    from gara_jax.train import final_partitions, train_many
+
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "mazes.json"
+    runs = json.loads(path.read_text())["runs"] if path.exists() else {}
+    for maze, method, steps in plan:
+        old = runs.get(maze, {}).get(method)
+        if old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == steps:
+            continue
+        config = method_config(method, maze, spe, evals)
+        bar = None
+        if not args.no_progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(desc=f"{maze}/{method}", unit="epoch", leave=False, file=sys.stderr)
+
+        def progress(done, total, metrics, bar=bar):
+            if bar is not None:
+                bar.total, bar.n = total, done
+                bar.set_postfix(goals=f"{np.mean(metrics['n_goals']):.1f}",
+                                greedy=f"{np.mean(metrics['eval_success']):.2f}")
+                bar.refresh()
+
+        t0 = time.perf_counter()
+        result = train_many(config, args.seeds, steps, progress=progress)
+        if bar is not None:
+            bar.close()
+        summary = summarize(result, steps)
+        partitions = None
+        if result.algorithm.startswith("gara"):
+            partitions = [[np.asarray(b).round(6).tolist() for b in p.boxes()]
+                          for p in final_partitions(result)]
+        runs.setdefault(maze, {})[method] = dict(
+            seeds=args.seeds, steps=steps, config=dataclasses.asdict(config), summary=summary,
+            final_partitions=partitions)
+        write_json(path, {"runs": runs})
+        s = summary
+        print(f"{maze}/{method}: training (last 30k) {_fmt(s['train_last30k'])}, greedy "
+              f"(last 10) {_fmt(s['greedy_last10'])}, goals {s['goals_end']:.1f} "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    chosen = {m: {k: runs[m][k] for k in args.methods if k in runs.get(m, {})}
+              for m in args.mazes if m in runs}
+    text = table(chosen)
+    (out / "table.md").write_text(text + "\n")
+    plot(chosen, out)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -59,11 +59,17 @@ def main(argv=None) -> dict:
     p.add_argument("--steps", type=int, default=150_000, help="environment steps per seed")
     p.add_argument("--steps-per-epoch", type=int, default=3000)
     p.add_argument("--out", type=Path, default=Path("zigzag_results"))
+    p.add_argument("--dry-run", action="store_true",
+                   help="build the environment and the config, print the plan, train nothing")
     args = p.parse_args(argv)
 
     envs.register(NAME, make_zigzag)
     config = GaraConfig(env=NAME, initial_boxes=initial_boxes(),
                         steps_per_epoch=args.steps_per_epoch)
+    if args.dry_run:
+        print(f"{NAME}: GARA, {args.seeds} seeds x {args.steps:,} steps, starting from "
+              f"{len(config.initial_boxes[0])} boxes; would write to {args.out}/")
+        return 0
     res = train_many(config, seeds=args.seeds, total_steps=args.steps,
                      progress=lambda done, total, m: print(
                          f"\repoch {done}/{total}  greedy success "

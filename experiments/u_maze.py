@@ -87,10 +87,10 @@ ENV_TITLES = {"u_maze": "the U-shaped maze", "point_u_maze": "the U-shaped maze 
 #: on the U-mazes; on the other layouts the paper's ratio to what Handcrafted needs (120,000 is
 #: 10 x the 12,000 steps after which Handcrafted's seed-mean greedy success reaches 0.8 on the
 #: U-maze), so 10 x that number measured on each layout, rounded up to 30,000 steps, at most
-#: 600,000 (big_u_maze and labyrinth: Handcrafted does not reach 0.8 within 600,000 steps).
+#: 600,000 (big_u_maze: Handcrafted does not reach 0.8 within 600,000 steps).
 #: docs/mazes.md has the measurements.
 ENV_STEPS = {"u_maze": 120_000, "point_u_maze": 120_000, "four_rooms": 270_000,
-             "u_maze_6": 330_000, "big_u_maze": 600_000, "labyrinth": 600_000}
+             "u_maze_6": 330_000, "big_u_maze": 600_000, "labyrinth": 120_000}
 PARTITION_STEPS = (0, 1_000, 30_000)  # the paper's panels; the run's end is added
 
 

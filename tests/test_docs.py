@@ -18,8 +18,8 @@ How each fenced block is checked (a block must be labelled ``python``, ``bash`` 
   that they run this checkout's code whatever the installed console script points to (its
   target, ``gara_jax.cli:main``, is checked against pyproject.toml), with ``--dry-run``
   added, which checks every argument and prints the plan without training or writing;
-  ``python benchmarks/NAME.py ...`` runs the script's ``main`` with ``--dry-run``
-  likewise; leading ``NAME=value`` assignments are set in the environment meanwhile; each must
+  ``python benchmarks/NAME.py ...`` and ``python examples/NAME.py ...`` run the script's
+  ``main`` with ``--dry-run`` likewise; leading ``NAME=value`` assignments are set in the environment meanwhile; each must
   exit with status 0 and leave its working directory (a temporary one) empty.
   ``pip install -e ".[EXTRA]"`` is not run: the extras it names must exist in pyproject.toml.
   A line that runs ``pytest`` must be, verbatim, a line of ``.ci/run`` (CI runs the README's
@@ -290,7 +290,7 @@ def run_command(tokens: list[str], where: str, line: str) -> int | None:
             return _call_main(cli.main, _dry(args))
         if head == "python" and args[:1] == ["-m"] and args[1].startswith("experiments."):
             return _call_main(importlib.import_module(args[1]).main, _dry(args[2:]))
-        if head == "python" and args and args[0].startswith("benchmarks/"):
+        if head == "python" and args and args[0].startswith(("benchmarks/", "examples/")):
             path = ROOT / args[0]
             assert path.is_file(), f"{where}: no such script {args[0]}"
             return _call_main(_load_script(path).main, _dry(args[1:]))

@@ -60,6 +60,8 @@ VARIANTS = {
     "gara+target_margin": ("coverage measured 10% inside G_d on every side, so a prediction "
                            "on a wall face of G_d does not count as entering it "
                            "(target_margin=0.1)", {"target_margin": 0.1}),
+    "gara+position_splits": ("the analysis bisects along x and y only, never along a "
+                             "velocity (split_dims=(0, 1))", {"split_dims": (0, 1)}),
     "gara+per_job_model": ("a fresh forward model per analysis, fitted until its loss is "
                            "stable (forward_model='per_job')", {"forward_model": "per_job"}),
     "gara+episode_cadence": ("the trigger, forward-model step and analysis after every "

@@ -163,7 +163,9 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (HandcraftedConfig, "planning", "yes"), (HandcraftedConfig, "low", None),
     (HandcraftedConfig, "goal_membership", "open"), (HandcraftedConfig, "eval_epsilon_low", 2.0),
     (GaraConfig, "hindsight_memory", 1), (GaraConfig, "q_columns", "rows"),
-    (GaraConfig, "target_margin", 0.5), (GaraConfig, "target_margin", True)])
+    (GaraConfig, "target_margin", 0.5), (GaraConfig, "target_margin", True),
+    (GaraConfig, "split_dims", ()), (GaraConfig, "split_dims", (0, 0)),
+    (GaraConfig, "split_dims", (-1,))])
 def test_config_validation_names_the_field(cls, field, value):
     with pytest.raises(ValueError, match=field):
         cls(**{field: value})

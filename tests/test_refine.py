@@ -112,6 +112,26 @@ def test_target_margin_measures_coverage_inside_the_target(margin):
         refine(net, start_lo, start_hi, t_lo, t_hi, target_margin=0.5)
 
 
+def test_split_dims_limit_the_bisection():
+    """The x-only model's reaching part lies along x: with x allowed the analysis finds it as
+    without the option; with only y allowed every half looks like its parent, so the boxes
+    are halved down to the volume floor (depth 5: 2^-5 <= 0.05) and nothing reaches."""
+    start_lo, start_hi = np.array([0.0, 0, -1, -1]), np.array([4.0, 3, 1, 1])
+    t_lo, t_hi = np.array([2.0, 0, -1, -1]), np.array([3.5, 3, 1, 1])
+    net = translation_net([1.0, 0, 0, 0], x_only=True)
+    plain = refine(net, start_lo, start_hi, t_lo, t_hi)
+    along_x = refine(net, start_lo, start_hi, t_lo, t_hi, split_dims=(0,))
+    assert x_intervals(along_x.reaching_lo, along_x.reaching_hi) == x_intervals(
+        plain.reaching_lo, plain.reaching_hi) == [(1.0, 2.5)]
+    along_y = refine(net, start_lo, start_hi, t_lo, t_hi, split_dims=[1])
+    assert len(along_y.reaching_lo) == 0 and along_y.depth == 5
+    assert along_y.n_analysed == 2**6 - 1
+    assert along_y.nonreaching_lo.tolist() == [start_lo.tolist()]  # merged back into G_s
+    for bad in ((), (4,), (0, 0)):
+        with pytest.raises(ValueError, match="split_dims"):
+            refine(net, start_lo, start_hi, t_lo, t_hi, split_dims=bad)
+
+
 def test_constant_outside_target_never_reaches():
     # The x-only model outputs y = 0.5, outside the target's y range [2, 3]: R misses G_d.
     res = refine(translation_net([1.0, 0, 0, 0], x_only=True), np.zeros(4), np.ones(4),

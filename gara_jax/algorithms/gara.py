@@ -391,6 +391,13 @@ class GaraConfig(HandcraftedConfig):
             ``x = 1``), and a forward model whose prediction lies within its error of that
             face, half of it past the face, is not far from counting as entering that box;
             with a margin it does not. Must lie in ``[0, 0.5)``.
+        split_dims: this project's option, not the authors' (``None``, their rule: every
+            dimension): the observation dimensions the analysis may bisect along, e.g.
+            ``(0, 1)`` for the mazes' positions only. The analysis of ``G_s`` then ends in
+            pieces that differ in where the agent is, not in how fast it moves, so fewer
+            pieces and ones the low level can aim for (a velocity piece is a goal reached
+            only by entering a box at the right speed). Checked against the observation
+            space when the agent is built.
         q_rows_after_split: the Q rows of a split's pieces (SPEC.md sections 3.6 and 3.9.3).
             ``"copied"``: every piece's row is a copy of ``G_s``'s, and only the non-reaching
             pieces' ``Q[piece, d]`` are set to 0 (this project's first reading of 3.6). In
@@ -493,6 +500,7 @@ class GaraConfig(HandcraftedConfig):
     initial_split_x: float | None = None
     coverage: str = "final"
     target_margin: float = 0.0
+    split_dims: tuple | None = None
     q_rows_after_split: str = "copied"
     pair_counts: str = "memory"
     records_after_split: str = "cleared"
@@ -544,6 +552,14 @@ class GaraConfig(HandcraftedConfig):
                 self.target_margin, bool) and 0.0 <= self.target_margin < 0.5):
             raise ValueError(f"target_margin: must be a number in [0, 0.5), got "
                              f"{self.target_margin!r}")
+        if self.split_dims is not None:
+            dims = self.split_dims
+            if (not isinstance(dims, tuple | list) or not dims
+                    or not all(isinstance(d, int) and not isinstance(d, bool) and d >= 0
+                               for d in dims) or len(set(dims)) != len(dims)):
+                raise ValueError(f"split_dims: must be None or distinct dimension indices >= 0, "
+                                 f"got {dims!r}")
+            object.__setattr__(self, "split_dims", tuple(dims))
         _one_of(self, "q_rows_after_split", Q_ROWS_AFTER_SPLIT)
         _one_of(self, "pair_counts", PAIR_COUNTS)
         _one_of(self, "records_after_split", RECORDS_AFTER_SPLIT)
@@ -963,6 +979,9 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     env, env_params = envs.make(config.env, **env_overrides)
     max_steps = int(env_params.max_steps)
     dim = int(np.prod(env.observation_space(env_params).shape))
+    if refining and config.split_dims is not None and max(config.split_dims) >= dim:
+        raise ValueError(f"split_dims: {config.split_dims} names a dimension the "
+                         f"{dim}-dimensional observations of {config.env!r} do not have")
     G = config.max_goals
     k = config.k
     dqn = make_dqn(config.low, input_dim=3 * dim, num_actions=env.num_actions)

@@ -203,7 +203,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
             method=config.refine_method, small_box_c1=config.small_box_c1,
-            coverage=config.coverage, target_margin=config.target_margin)
+            coverage=config.coverage, target_margin=config.target_margin,
+            split_dims=config.split_dims)
         info["refine_s"] = time.perf_counter() - t_ref
 
         # 4. Apply the verdicts seed by seed on host copies, then write everything back.

@@ -159,7 +159,8 @@ def _collect(tree, dim, dtype, n_analysed, depth) -> RefineResult:
 def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
                 tau2: float = 0.1, min_volume_ratio: float = 0.05,
                 method: str = "crown", small_box_c1: float | None = None,
-                coverage: str = "final", target_margin: float = 0.0) -> list[RefineResult]:
+                coverage: str = "final", target_margin: float = 0.0,
+                split_dims: Sequence[int] | None = None) -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -180,6 +181,9 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         target_margin: the coverage is measured against ``G_d`` shrunk on every side by this
             fraction of its width in each dimension (``[0, 0.5)``; 0: ``G_d`` itself). The
             forward model's goal inputs stay ``G_d``'s bounds.
+        split_dims: the dimensions a box may be bisected along (``None``: all). The largest
+            smear among them picks the dimension; a box with no width left in them is treated
+            as too small to split.
 
     Returns:
         One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
@@ -217,6 +221,13 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
     n_jobs, dim = s_lo.shape
     if n_jobs == 0:
         return []
+    splittable = np.ones(dim, bool)
+    if split_dims is not None:
+        dims = np.asarray(split_dims, int).reshape(-1)
+        if dims.size == 0 or dims.min() < 0 or dims.max() >= dim or len(set(dims)) != dims.size:
+            raise ValueError(f"split_dims: must be distinct dimensions in [0, {dim}), got "
+                             f"{split_dims!r}")
+        splittable = np.isin(np.arange(dim), dims)
     j_layers = layers[0][0].shape[0]
     if j_layers != n_jobs:
         raise ValueError(f"stacked_layers: {j_layers} networks for {n_jobs} jobs")
@@ -261,7 +272,7 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 if c1[j, i] >= tau1:
                     node["verdict"] = True
                     continue
-                width_i = node["hi"] - node["lo"]
+                width_i = np.where(splittable, node["hi"] - node["lo"], 0)
                 # Halving volume: at depth d the box has 2^-d of G_s's volume (over the
                 # dimensions where G_s has width, the only ones ever split).
                 if c2[j, i] <= tau2:
@@ -289,7 +300,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
 def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
            tau2: float = 0.1, min_volume_ratio: float = 0.05,
            method: str = "crown", small_box_c1: float | None = None,
-           coverage: str = "final", target_margin: float = 0.0) -> RefineResult:
+           coverage: str = "final", target_margin: float = 0.0,
+           split_dims: Sequence[int] | None = None) -> RefineResult:
     """Split the start box ``G_s`` into boxes that reach ``G_d`` and boxes that do not.
 
     The single-job form of :func:`refine_many`; ``layers_or_params`` is one forward model (a
@@ -319,4 +331,4 @@ def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: 
     return refine_many(stacked, s_lo[None], s_hi[None], t_lo[None], t_hi[None], tau1=tau1,
                        tau2=tau2, min_volume_ratio=min_volume_ratio, method=method,
                        small_box_c1=small_box_c1, coverage=coverage,
-                       target_margin=target_margin)[0]
+                       target_margin=target_margin, split_dims=split_dims)[0]

@@ -94,6 +94,22 @@ def method_config(method: str, maze: str, steps_per_epoch=None, eval_episodes=No
     return config
 
 
+def code_version() -> str | None:
+    """The checkout's commit (``git rev-parse --short HEAD``), with ``+changes`` when tracked
+    files differ from it; ``None`` outside a git checkout. Stored with every run."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, check=True,
+                              capture_output=True, text=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"],
+                               cwd=root, check=True, capture_output=True, text=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+changes" if dirty.strip() else "")
+
+
 def summarize(result, total_steps: int) -> dict:
     """A run's summary (:func:`experiments.gara_ablation.summarize_run`) and its curves."""
     from experiments.gara_ablation import summarize_run
@@ -279,6 +295,7 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     path = out / "mazes.json"
     runs = json.loads(path.read_text())["runs"] if path.exists() else {}
+    version = code_version()
     for maze, method, steps in plan:
         old = runs.get(maze, {}).get(method)
         if old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == steps:
@@ -307,8 +324,8 @@ def main(argv=None) -> int:
             partitions = [[np.asarray(b).round(6).tolist() for b in p.boxes()]
                           for p in final_partitions(result)]
         runs.setdefault(maze, {})[method] = dict(
-            seeds=args.seeds, steps=steps, config=dataclasses.asdict(config), summary=summary,
-            final_partitions=partitions)
+            seeds=args.seeds, steps=steps, commit=version, config=dataclasses.asdict(config),
+            summary=summary, final_partitions=partitions)
         write_json(path, {"runs": runs})
         s = summary
         print(f"{maze}/{method}: training (last 30k) {_fmt(s['train_last30k'])}, greedy "

@@ -231,6 +231,7 @@ def test_mazes_study_quick_run_writes_its_files(tmp_path, capsys):
     runs = json.loads((tmp_path / "mazes.json").read_text())["runs"]["four_rooms"]
     assert set(runs) == {"gara", "gara_no_refinement"}
     assert runs["gara_no_refinement"]["config"]["min_steps"] == 10**9
+    assert all("commit" in run for run in runs.values())  # None outside a git checkout
     for run in runs.values():
         s = run["summary"]
         assert s["greedy_end"]["n"] == 2 and len(s["per_seed"]["greedy_last10"]) == 2

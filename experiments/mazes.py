@@ -62,6 +62,10 @@ VARIANTS = {
                            "(target_margin=0.1)", {"target_margin": 0.1}),
     "gara+position_splits": ("the analysis bisects along x and y only, never along a "
                              "velocity (split_dims=(0, 1))", {"split_dims": (0, 1)}),
+    "gara+one_cut": ("an analysis bisects G_s at most once (min_volume_ratio=0.5: two "
+                     "pieces at most, not up to 32)", {"min_volume_ratio": 0.5}),
+    "gara+one_position_cut": ("both: at most one bisection, along x or y",
+                              {"min_volume_ratio": 0.5, "split_dims": (0, 1)}),
     "gara+per_job_model": ("a fresh forward model per analysis, fitted until its loss is "
                            "stable (forward_model='per_job')", {"forward_model": "per_job"}),
     "gara+episode_cadence": ("the trigger, forward-model step and analysis after every "

@@ -24,8 +24,8 @@ refinement-off variant seed by seed (``paired``: the mean difference and its int
 Writes to ``--out`` (default ``results/mazes``):
 
 - ``mazes.json``: every run's summary, per-seed values, seed-mean curves and final partitions,
-  rewritten after each run; a run already there with the same seeds and steps is not run
-  again (``--rerun`` runs it again), so an interrupted study continues where it stopped;
+  rewritten after each run; a run already there with the same seeds, steps and config is not
+  run again (``--rerun`` runs it again), so an interrupted study continues where it stopped;
 - ``table.md``: the markdown table (also printed);
 - ``mazes_success.png``: a row per maze: training success by steps, greedy success by steps
   (seed means with 95% bands);
@@ -302,9 +302,11 @@ def main(argv=None) -> int:
     version = code_version()
     for maze, method, steps in plan:
         old = runs.get(maze, {}).get(method)
-        if old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == steps:
-            continue
         config = method_config(method, maze, spe, evals)
+        same = json.loads(json.dumps(dataclasses.asdict(config)))  # as stored (tuples: lists)
+        if (old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == steps
+                and old["config"] == same):
+            continue
         bar = None
         if not args.no_progress:
             from tqdm.auto import tqdm

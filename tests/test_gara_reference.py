@@ -267,7 +267,7 @@ def _crafted_host_state(cfg, rows=600):
 HOST_CFG = dict(steps_per_epoch=100, eval_episodes=1, min_steps=100, memory_capacity=1024,
                 max_goals=16, low=LOW, refine_method="ibp", tau1=0.9, tau2=0.01,
                 small_box_c1=0.5, forward=fm.ForwardModelConfig(max_epochs=200),
-                memory="options", forward_model="per_job")
+                memory="options", forward_model="per_job", split_dims=None)
 
 
 def test_host_step_splits_boosts_epsilon_and_relabels_the_replay():

@@ -94,6 +94,10 @@ def _variants():
         "results_planning_from_q": ("the results version's Planning, each seed started from "
                                     "the same seed's final `results` partition (the authors' "
                                     "runs, SPEC.md 3.9.3)", rep(res, planning=True), "results"),
+        "results_min_steps_5000_planning_from_q": (
+            "the results version's Planning with min_steps 5,000, each seed started from the "
+            "same seed's final `results_min_steps_5000` partition",
+            rep(res, planning=True, min_steps=5000), "results_min_steps_5000"),
         "results_planning": ("the results version's Planning from the two initial goals "
                              "(Planning-from-Q reverted)", rep(res, planning=True)),
         "previous_default": ("GaraConfig() before SPEC revision 2 (session 4)", previous),

@@ -38,12 +38,15 @@ def test_results_rows_revert_one_mechanism_each():
               "results-q_rows_copied": {"q_rows_after_split"},
               "results-300_step_episodes": {"max_episode_steps"},
               "results_min_steps_5000": {"min_steps"},
-              "results_planning": {"planning"}, "results_planning_from_q": {"planning"}}
+              "results_planning": {"planning"}, "results_planning_from_q": {"planning"},
+              "results_min_steps_5000_planning_from_q": {"planning", "min_steps"}}
     for name, fields in expect.items():
         a, b = flat(res), flat(variants[name][1])
         assert {k for k in a if a[k] != b[k]} == fields, name
     assert ab._source(variants["results_planning_from_q"]) == "results"
     assert ab._source(variants["results_planning"]) is None
+    assert ab._source(variants["results_min_steps_5000_planning_from_q"]) == (
+        "results_min_steps_5000")
     assert ab.with_sources(["results_planning_from_q", "default", "results"], variants) == [
         "results", "results_planning_from_q", "default"]
 

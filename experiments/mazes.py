@@ -74,6 +74,10 @@ VARIANTS = {
                            "stable (forward_model='per_job')", {"forward_model": "per_job"}),
     "gara+episode_cadence": ("the trigger, forward-model step and analysis after every "
                              "episode (cadence='episode')", {"cadence": "episode"}),
+    "gara+cumulative_counts": ("pair counts kept per goal index, never recomputed from the "
+                               "memory, so a pair's count survives a split of the other goal "
+                               "(pair_counts='cumulative', the authors' counts)",
+                               {"pair_counts": "cumulative"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -350,6 +350,23 @@ def _choose_jobs(config, candidates, steps):
     return jobs
 
 
+def _seed_rows(tree, seeds):
+    """The rows ``seeds`` of every leaf of ``tree`` (arrays ``[S, ...]``), as NumPy.
+
+    Only those rows leave the devices. The index is padded to a power of two (repeating its
+    last seed), so that the device gather compiles for a few sizes, not for every count of
+    seeds; the padding is dropped on the host.
+    """
+    seeds = np.asarray(seeds, int)
+    n = len(seeds)
+    padded = np.concatenate([seeds, np.full(max(1, 1 << (n - 1).bit_length()) - n, seeds[-1])])
+    return jax.tree.map(lambda a: np.asarray(a)[:n],
+                        jax.device_get(_take_rows(tree, jnp.asarray(padded))))
+
+
+_take_rows = jax.jit(lambda tree, take: jax.tree.map(lambda a: a[take], tree))
+
+
 def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_key, epoch):
     """Fresh forward models for ``jobs``, trained in one batched call: ``(stable, params)``.
 
@@ -358,9 +375,8 @@ def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_ke
     # Only the memory rows of the seeds with a job leave the devices.
     job_seeds = sorted({i for i, _, _ in jobs})
     row_of = {seed: r for r, seed in enumerate(job_seeds)}
-    take = jnp.asarray(job_seeds)
-    mem, start_goal, target_goal = jax.device_get(jax.tree.map(
-        lambda a: a[take], (states.memory, start_goal, target_goal)))
+    mem, start_goal, target_goal = _seed_rows((states.memory, start_goal, target_goal),
+                                              job_seeds)
     datasets = []
     for i, s_idx, d_idx in jobs:
         r = row_of[i]
@@ -407,11 +423,9 @@ def _shared_step(config, states, host, ok, shared_updates, start_goal, target_go
     active = np.flatnonzero(ok.reshape(n_seeds, -1).any(axis=1))
     if len(active) == 0:
         return np.zeros_like(ok), states.forward, 0
-    take = jnp.asarray(active)
-    mem, start_np, target_np = jax.device_get(jax.tree.map(
-        lambda a: a[take], (states.memory.replace(start=None, end=None, target_lo=None,
-                                                  target_hi=None, reward=None),
-                            start_goal, target_goal)))
+    mem, start_np, target_np = _seed_rows(
+        (states.memory.replace(start=None, end=None, target_lo=None, target_hi=None,
+                               reward=None), start_goal, target_goal), active)
     since = np.asarray(since)[active]
     updates, pair_ids = [], []
     for r, i in enumerate(active):

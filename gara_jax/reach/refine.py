@@ -116,7 +116,9 @@ def _stacked_layers(stacked, n_jobs_name="stacked_layers"):
     if isinstance(stacked, Mapping):
         stacked = mlp_layers(stacked)
     try:
-        layers = tuple((jnp.asarray(w), jnp.asarray(b)) for w, b in stacked)
+        # Host copies: the per-job padding below is then NumPy indexing, which compiles
+        # nothing (a device gather would compile once per job count).
+        layers = tuple((np.asarray(w), np.asarray(b)) for w, b in stacked)
     except (TypeError, ValueError) as err:
         raise ValueError(f"{n_jobs_name}: expected (kernel, bias) pairs ({err})") from None
     if not layers:

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from experiments import gara_ablation as ab
+from gara_jax.algorithms import GaraConfig
 
 
 def test_every_variant_builds_and_the_default_differs_from_the_reference_as_documented():
@@ -29,6 +30,7 @@ def test_results_rows_revert_one_mechanism_each():
     """Each ``results-...`` row differs from ``results`` in the fields its name says."""
     variants = ab._variants()
     res = variants["results"][1]
+    assert variants["results_min_steps_5000"][1] == GaraConfig.reference(version="results")
     flat = lambda c: {**dataclasses.asdict(c), **{f"high.{k}": v for k, v in  # noqa: E731
                                                   dataclasses.asdict(c.high).items()}}
     expect = {"results-coverage_final": {"coverage"}, "results-epoch_cadence": {"cadence"},
@@ -39,7 +41,8 @@ def test_results_rows_revert_one_mechanism_each():
               "results-300_step_episodes": {"max_episode_steps"},
               "results_min_steps_5000": {"min_steps"},
               "results_planning": {"planning"}, "results_planning_from_q": {"planning"},
-              "results_min_steps_5000_planning_from_q": {"planning", "min_steps"}}
+              "results_min_steps_5000_planning_from_q": {"planning", "min_steps"},
+              "results_min_steps_5000-coverage_final": {"min_steps", "coverage"}}
     for name, fields in expect.items():
         a, b = flat(res), flat(variants[name][1])
         assert {k for k in a if a[k] != b[k]} == fields, name

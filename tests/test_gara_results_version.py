@@ -359,7 +359,7 @@ def test_results_preset_field_by_field():
     final, res = GaraConfig.reference(), GaraConfig.reference(version="results")
     expected = dict(
         # 3.9.2, the results version's own.
-        coverage="results", split_epsilon_boost=1.0, memory_capacity=10_000, min_steps=1000,
+        coverage="results", split_epsilon_boost=1.0, memory_capacity=10_000, min_steps=5000,
         relabel_counts="add",
         # 3.9.3, what both versions do.
         pair_counts="cumulative", records_after_split="kept", relabel_after="update",
@@ -384,7 +384,7 @@ def test_results_preset_field_by_field():
     assert (res.tau1, res.tau2, res.min_volume_ratio, res.small_box_c1) == (0.9, 0.01, 0.05, 0.5)
     # Both values of the open min_steps; the planning variant skips nothing either (3.9.3).
     assert RESULTS_MIN_STEPS == (1000, 5000)
-    assert GaraConfig.reference(version="results", min_steps=5000).min_steps == 5000
+    assert GaraConfig.reference(version="results", min_steps=1000).min_steps == 1000
     planning = GaraConfig.reference(version="results", planning=True)
     assert planning.planning and not planning.skip_unreachable
     hc = HandcraftedConfig.reference(version="results")

@@ -70,6 +70,9 @@ VARIANTS = {
                               {"split_dims": None, "min_volume_ratio": 0.5}),
     "gara+one_cut": ("an analysis bisects G_s at most once, along x or y "
                      "(min_volume_ratio=0.5)", {"min_volume_ratio": 0.5}),
+    "gara+two_cuts": ("an analysis bisects G_s at most twice, along x or y "
+                      "(min_volume_ratio=0.25: up to 4 pieces, not up to 32)",
+                      {"min_volume_ratio": 0.25}),
     "gara+per_job_model": ("a fresh forward model per analysis, fitted until its loss is "
                            "stable (forward_model='per_job')", {"forward_model": "per_job"}),
     "gara+episode_cadence": ("the trigger, forward-model step and analysis after every "

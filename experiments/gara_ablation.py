@@ -94,6 +94,10 @@ def _variants():
         "results_min_steps_5000": ("GaraConfig.reference(version='results'): the results "
                                    "version with min_steps 5,000 (SPEC.md leaves it open: "
                                    "1,000 or 5,000)", rep(res, min_steps=5000)),
+        "results_min_steps_5000+merge_siblings": (
+            "the same, and an analysis merges only same-verdict sibling halves, not adjacent "
+            "boxes (merge='siblings'; SPEC.md 3.9.1: the files hold adjacent unmerged boxes)",
+            rep(res, min_steps=5000, merge="siblings")),
         "results_min_steps_5000-coverage_final": (
             "the same with the final coverage rule (an empty intersection in any dimension "
             "gives c1 = c2 = 0)", rep(res, min_steps=5000, coverage="final")),

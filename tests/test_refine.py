@@ -132,6 +132,28 @@ def test_split_dims_limit_the_bisection():
             refine(net, start_lo, start_hi, t_lo, t_hi, split_dims=bad)
 
 
+def test_merge_siblings_keeps_pieces_of_different_branches_apart():
+    """F = x + 1 on x in [0, 4] towards x in [2, 3.5] (tau1 0.9, tau2 0.01): the bisection's
+    leaves, left to right, are [0,1] no, [1,2] yes, [2,2.5] yes, [2.5,3] no, [3,4] no.
+    ``merge="full"`` joins the neighbours with the same verdict; ``"siblings"`` joins only
+    halves of one parent, and [1,2] / [2,2.5] or [2.5,3] / [3,4] are not siblings."""
+    start_lo, start_hi = np.array([0.0, 0, 0, 0]), np.array([4.0, 1, 1, 1])
+    t_lo, t_hi = np.array([2.0, 0, 0, 0]), np.array([3.5, 1, 1, 1])
+    net = translation_net([1.0, 0, 0, 0])
+    kw = dict(tau1=0.9, tau2=0.01, split_dims=(0,))
+    full = refine(net, start_lo, start_hi, t_lo, t_hi, **kw)
+    assert x_intervals(full.reaching_lo, full.reaching_hi) == [(1.0, 2.5)]
+    assert x_intervals(full.nonreaching_lo, full.nonreaching_hi) == [(0.0, 1.0), (2.5, 4.0)]
+    sib = refine(net, start_lo, start_hi, t_lo, t_hi, merge="siblings", **kw)
+    assert x_intervals(sib.reaching_lo, sib.reaching_hi) == [(1.0, 2.0), (2.0, 2.5)]
+    assert x_intervals(sib.nonreaching_lo, sib.nonreaching_hi) == [
+        (0.0, 1.0), (2.5, 3.0), (3.0, 4.0)]
+    boxes.check_tiles(np.concatenate([sib.reaching_lo, sib.nonreaching_lo]),
+                      np.concatenate([sib.reaching_hi, sib.nonreaching_hi]), start_lo, start_hi)
+    with pytest.raises(ValueError, match="merge"):
+        refine(net, start_lo, start_hi, t_lo, t_hi, merge="one_pass")
+
+
 def test_constant_outside_target_never_reaches():
     # The x-only model outputs y = 0.5, outside the target's y range [2, 3]: R misses G_d.
     res = refine(translation_net([1.0, 0, 0, 0], x_only=True), np.zeros(4), np.ones(4),

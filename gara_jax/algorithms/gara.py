@@ -62,6 +62,7 @@ Q_COLUMNS = ("copy", "reference", "zero")
 SELF_TARGETS = ("always", "exit_goal")
 PIECE_ORDERS = ("appended", "parent")
 COVERAGE_RULES = ("final", "results")
+MERGE_RULES = ("full", "siblings")  # gara_jax.reach.refine.MERGE_RULES
 Q_ROWS_AFTER_SPLIT = ("copied", "aliased_at_split", "aliased")
 PAIR_COUNTS = ("memory", "cumulative")
 RECORDS_AFTER_SPLIT = ("cleared", "kept")
@@ -405,6 +406,14 @@ class GaraConfig(HandcraftedConfig):
             within the intervals. For an environment whose first two observation dimensions
             are not where the agent is, set it (checked against the observation space when
             the agent is built).
+        merge: what an analysis merges before its pieces become goals
+            (:func:`gara_jax.reach.refine_many`). ``"full"`` (this project's reading of SPEC.md
+            3.6, the presets): same-verdict sibling halves, then adjacent same-verdict boxes
+            until no two share a face. ``"siblings"``: the sibling halves only, so a split
+            keeps more pieces. SPEC.md 3.9.1 says the authors' result files hold adjacent,
+            unmerged non-reaching boxes, made by their final version's one-pass merge, which
+            it does not describe further; ``"siblings"`` is this project's bracket of that
+            unknown, not the authors' rule.
         q_rows_after_split: the Q rows of a split's pieces (SPEC.md sections 3.6 and 3.9.3).
             ``"copied"``: every piece's row is a copy of ``G_s``'s, and only the non-reaching
             pieces' ``Q[piece, d]`` are set to 0 (this project's first reading of 3.6). In
@@ -508,6 +517,7 @@ class GaraConfig(HandcraftedConfig):
     coverage: str = "final"
     target_margin: float = 0.0
     split_dims: tuple | None = (0, 1)
+    merge: str = "full"
     q_rows_after_split: str = "copied"
     pair_counts: str = "memory"
     records_after_split: str = "cleared"
@@ -555,6 +565,7 @@ class GaraConfig(HandcraftedConfig):
                                      f"maze's x range (0, {n:g}), got {self.initial_split_x}")
         _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
         _one_of(self, "coverage", COVERAGE_RULES)
+        _one_of(self, "merge", MERGE_RULES)
         if not (isinstance(self.target_margin, int | float) and not isinstance(
                 self.target_margin, bool) and 0.0 <= self.target_margin < 0.5):
             raise ValueError(f"target_margin: must be a number in [0, 0.5), got "

@@ -17,7 +17,8 @@ do not. A box is analysed by bounding ``F`` over it with the goal inputs held at
 The frontier is processed breadth-first, all jobs and all boxes of a depth level in one jitted,
 batched bounds call. Sizes are padded to powers of two so that few shapes get compiled.
 Afterwards, halves that got the same verdict are merged back into their parent, and adjacent
-boxes of the same verdict are merged (:func:`gara_jax.boxes.merge_adjacent`).
+boxes of the same verdict are merged (:func:`gara_jax.boxes.merge_adjacent`; ``merge="siblings"``
+stops after the first step).
 """
 
 from __future__ import annotations
@@ -36,6 +37,9 @@ from gara_jax.reach.crown import crown_preactivations
 from gara_jax.reach.ibp import ibp_preactivations
 
 METHODS = ("ibp", "crown")
+#: What is merged after an analysis: ``"full"``, same-verdict sibling halves and then adjacent
+#: same-verdict boxes until no two share a face; ``"siblings"``, the sibling halves only.
+MERGE_RULES = ("full", "siblings")
 MIN_BUCKET = 8  # smallest padded frontier per job: fewer shapes to compile
 
 
@@ -127,17 +131,20 @@ def _stacked_layers(stacked, n_jobs_name="stacked_layers"):
     return layers
 
 
-def _sorted_boxes(lo, hi, dim, dtype):
+def _sorted_boxes(lo, hi, dim, dtype, merge):
     if not lo:
         empty = np.zeros((0, dim), dtype)
         return empty, empty.copy()
-    lo, hi = boxes.merge_adjacent(np.stack(lo), np.stack(hi))
+    lo, hi = np.stack(lo), np.stack(hi)
+    if merge == "full":
+        lo, hi = boxes.merge_adjacent(lo, hi)
     order = np.lexsort(np.concatenate([lo, hi], axis=1).T[::-1])
     return lo[order], hi[order]
 
 
-def _collect(tree, dim, dtype, n_analysed, depth) -> RefineResult:
-    """Merge same-verdict siblings bottom-up, then adjacent boxes; build the result."""
+def _collect(tree, dim, dtype, n_analysed, depth, merge) -> RefineResult:
+    """Merge same-verdict siblings bottom-up, then (``merge="full"``) adjacent boxes; build
+    the result."""
     for node in reversed(tree):
         kids = node["children"]
         if kids is not None:
@@ -153,8 +160,8 @@ def _collect(tree, dim, dtype, n_analysed, depth) -> RefineResult:
             leaves[node["verdict"]][1].append(node["hi"])
         else:
             stack.extend(reversed(node["children"]))
-    r_lo, r_hi = _sorted_boxes(*leaves[True], dim, dtype)
-    u_lo, u_hi = _sorted_boxes(*leaves[False], dim, dtype)
+    r_lo, r_hi = _sorted_boxes(*leaves[True], dim, dtype, merge)
+    u_lo, u_hi = _sorted_boxes(*leaves[False], dim, dtype, merge)
     return RefineResult(r_lo, r_hi, u_lo, u_hi, n_analysed, depth)
 
 
@@ -162,7 +169,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 tau2: float = 0.1, min_volume_ratio: float = 0.05,
                 method: str = "crown", small_box_c1: float | None = None,
                 coverage: str = "final", target_margin: float = 0.0,
-                split_dims: Sequence[int] | None = None) -> list[RefineResult]:
+                split_dims: Sequence[int] | None = None,
+                merge: str = "full") -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -186,6 +194,11 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         split_dims: the dimensions a box may be bisected along (``None``: all). The largest
             smear among them picks the dimension; a box with no width left in them is treated
             as too small to split.
+        merge: ``"full"``: after the analysis, same-verdict sibling halves are merged back
+            into their parent, then adjacent same-verdict boxes until no two share a full
+            face; ``"siblings"``: only the first step, so two same-verdict boxes from
+            different branches of the bisection stay apart (as in the partitions of the
+            authors' result files, SPEC.md 3.9.1).
 
     Returns:
         One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
@@ -210,6 +223,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         raise ValueError(f"min_volume_ratio: must be in (0, 1], got {min_volume_ratio}")
     if small_box_c1 is not None and not 0.0 <= small_box_c1 <= 1.0:
         raise ValueError(f"small_box_c1: must be None or lie in [0, 1], got {small_box_c1}")
+    if merge not in MERGE_RULES:
+        raise ValueError(f"merge: must be one of {MERGE_RULES}, got {merge!r}")
     if coverage not in boxes.COVERAGE_RULES:
         raise ValueError(f"coverage: must be one of {boxes.COVERAGE_RULES}, got {coverage!r}")
     if not 0.0 <= target_margin < 0.5:
@@ -296,14 +311,15 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                                      verdict=False))
                 new_frontier[j].extend(node["children"])
         frontier = new_frontier
-    return [_collect(trees[j], dim, dtype, n_analysed[j], depth[j]) for j in range(n_jobs)]
+    return [_collect(trees[j], dim, dtype, n_analysed[j], depth[j], merge)
+            for j in range(n_jobs)]
 
 
 def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: float = 0.7,
            tau2: float = 0.1, min_volume_ratio: float = 0.05,
            method: str = "crown", small_box_c1: float | None = None,
            coverage: str = "final", target_margin: float = 0.0,
-           split_dims: Sequence[int] | None = None) -> RefineResult:
+           split_dims: Sequence[int] | None = None, merge: str = "full") -> RefineResult:
     """Split the start box ``G_s`` into boxes that reach ``G_d`` and boxes that do not.
 
     The single-job form of :func:`refine_many`; ``layers_or_params`` is one forward model (a
@@ -333,4 +349,4 @@ def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: 
     return refine_many(stacked, s_lo[None], s_hi[None], t_lo[None], t_hi[None], tau1=tau1,
                        tau2=tau2, min_volume_ratio=min_volume_ratio, method=method,
                        small_box_c1=small_box_c1, coverage=coverage,
-                       target_margin=target_margin, split_dims=split_dims)[0]
+                       target_margin=target_margin, split_dims=split_dims, merge=merge)[0]

@@ -45,6 +45,7 @@ from gara_jax.agents import forward_model as fm
 from gara_jax.agents import high_level as hl
 from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
 from gara_jax.algorithms.base import Algorithm, epoch_metrics
+from gara_jax.reach.refine import MERGE_RULES
 
 REFINE_METHODS = ("crown", "ibp")
 
@@ -62,7 +63,6 @@ Q_COLUMNS = ("copy", "reference", "zero")
 SELF_TARGETS = ("always", "exit_goal")
 PIECE_ORDERS = ("appended", "parent")
 COVERAGE_RULES = ("final", "results")
-MERGE_RULES = ("full", "siblings")  # gara_jax.reach.refine.MERGE_RULES
 Q_ROWS_AFTER_SPLIT = ("copied", "aliased_at_split", "aliased")
 PAIR_COUNTS = ("memory", "cumulative")
 RECORDS_AFTER_SPLIT = ("cleared", "kept")

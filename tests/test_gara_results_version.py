@@ -419,7 +419,8 @@ def test_final_preset_has_what_both_versions_do():
 
 @pytest.mark.parametrize("field,value", [
     ("coverage", "draft"), ("q_rows_after_split", "shared"), ("pair_counts", "ring"),
-    ("records_after_split", "reset"), ("relabel_counts", "double"), ("relabel_after", "never")])
+    ("records_after_split", "reset"), ("relabel_counts", "double"), ("relabel_after", "never"),
+    ("merge", "one_pass")])
 def test_new_options_are_validated(field, value):
     with pytest.raises(ValueError, match=field):
         GaraConfig(**{field: value})

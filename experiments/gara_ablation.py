@@ -102,6 +102,11 @@ def _variants():
             "the same with IBP bounds, not CROWN: looser output boxes, as the authors' Ai2 "
             "zonotopes are looser than CROWN (SPEC.md 3.6), so more boxes stay undecided and "
             "are bisected (refine_method='ibp')", rep(res, min_steps=5000, refine_method="ibp")),
+        "results_min_steps_5000+ibp_planning_from_q": (
+            "Planning with IBP bounds, each seed started from the same seed's final "
+            "`results_min_steps_5000+ibp` partition",
+            rep(res, planning=True, min_steps=5000, refine_method="ibp"),
+            "results_min_steps_5000+ibp"),
         "results_min_steps_5000-coverage_final": (
             "the same with the final coverage rule (an empty intersection in any dimension "
             "gives c1 = c2 = 0)", rep(res, min_steps=5000, coverage="final")),

@@ -44,7 +44,9 @@ def test_results_rows_revert_one_mechanism_each():
               "results_min_steps_5000_planning_from_q": {"planning", "min_steps"},
               "results_min_steps_5000-coverage_final": {"min_steps", "coverage"},
               "results_min_steps_5000+merge_siblings": {"min_steps", "merge"},
-              "results_min_steps_5000+ibp": {"min_steps", "refine_method"}}
+              "results_min_steps_5000+ibp": {"min_steps", "refine_method"},
+              "results_min_steps_5000+ibp_planning_from_q": {"min_steps", "refine_method",
+                                                             "planning"}}
     for name, fields in expect.items():
         a, b = flat(res), flat(variants[name][1])
         assert {k for k in a if a[k] != b[k]} == fields, name

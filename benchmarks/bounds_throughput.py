@@ -1,6 +1,6 @@
-"""Bound throughput (IBP, CROWN) on forward-model-shaped MLPs, and the wall time of refinements.
+"""Bound throughput (IBP, CROWN, zonotopes) on forward-model-shaped MLPs, and the wall time of refinements.
 
-Throughput rows: boxes per second of ``gara_jax.reach.ibp`` / ``crown`` (the public functions,
+Throughput rows: boxes per second of ``gara_jax.reach.ibp`` / ``crown`` / ``zonotope`` (the public functions,
 ``validate=False``, float32) on MLPs 12-8-8-4 and 12-32-32-4 with Glorot weights and random
 input boxes (every dimension has width), for each batch size. Compilation is timed apart
 (``lower().compile()`` of the jitted core); then one warm-up call, then ``--repeats`` rounds of
@@ -53,15 +53,17 @@ import optax
 
 from gara_jax.networks import MLP, mlp_layers
 from gara_jax.partition import gara_initial
-from gara_jax.reach import crown, ibp, refine, refine_many
+from gara_jax.reach import crown, ibp, refine, refine_many, zonotope
 from gara_jax.reach.crown import _crown_jit
 from gara_jax.reach.ibp import _ibp_jit
+from gara_jax.reach.zonotope import _zonotope_jit
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # run as a script or loaded by path
 from _common import load_average, machine_info, write_result  # noqa: E402
 
 ARCHS = {"12-8-8-4": (8, 8), "12-32-32-4": (32, 32)}
-METHODS = {"ibp": (ibp, _ibp_jit), "crown": (crown, _crown_jit)}
+METHODS = {"ibp": (ibp, _ibp_jit), "crown": (crown, _crown_jit),
+           "zonotope": (zonotope, _zonotope_jit)}
 
 
 def random_layers(hidden, seed):
@@ -294,7 +296,7 @@ def main(argv=None) -> dict:
         # The translation reaches x in [1.5, 3] from x in [0.5, 1]: a split at depth 1.
         for name, model, x_lo in (("hand-set translation", translation_model(), 1.5),
                                   ("trained 12-8-8-4", params, 1.0)):
-            for method in ("ibp", "crown"):
+            for method in args.methods:
                 refine_rows += bench_refine(name, model, method, args.jobs, args.repeats, x_lo)
     info["load_average_1min_at_end"] = load_average()
     table = bounds_table(rows)

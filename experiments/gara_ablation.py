@@ -107,6 +107,15 @@ def _variants():
             "`results_min_steps_5000+ibp` partition",
             rep(res, planning=True, min_steps=5000, refine_method="ibp"),
             "results_min_steps_5000+ibp"),
+        "results_min_steps_5000+zonotope": (
+            "the same with zonotope bounds, not CROWN: the authors' kind of analysis (Ai2 "
+            "zonotopes, SPEC.md 3.6; DeepZ's ReLU transformer, refine_method='zonotope')",
+            rep(res, min_steps=5000, refine_method="zonotope")),
+        "results_min_steps_5000+zonotope_planning_from_q": (
+            "Planning with zonotope bounds, each seed started from the same seed's final "
+            "`results_min_steps_5000+zonotope` partition",
+            rep(res, planning=True, min_steps=5000, refine_method="zonotope"),
+            "results_min_steps_5000+zonotope"),
         "results_min_steps_5000-coverage_final": (
             "the same with the final coverage rule (an empty intersection in any dimension "
             "gives c1 = c2 = 0)", rep(res, min_steps=5000, coverage="final")),

@@ -1,4 +1,5 @@
-"""IBP and CROWN: golden parity with the reference verifier, soundness, batching, input checks."""
+"""IBP, CROWN and zonotopes: golden parity with the reference verifier, soundness, batching,
+input checks."""
 
 from pathlib import Path
 
@@ -10,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from gara_jax.networks import mlp_layers
-from gara_jax.reach import crown, ibp, layers_from_flax
+from gara_jax.reach import crown, ibp, layers_from_flax, zonotope
 
 # The golden bounds ship with the tests (tests/data/README.md says where they came from).
 GOLDEN = Path(__file__).resolve().parent / "data" / "bounds_reference.npz"
@@ -93,12 +94,12 @@ def test_sampled_outputs_lie_within_both_bounds(case):
     x = lo + u * (hi - lo)
     y = _forward(layers, x)  # [200, boxes, out], float64
     with jax.enable_x64(True):
-        for fn in (ibp, crown):
+        for fn in (ibp, crown, zonotope):
             out_lo, out_hi = (np.asarray(v) for v in fn(layers, lo, hi))
             assert (y >= out_lo - 1e-9).all() and (y <= out_hi + 1e-9).all(), fn.__name__
     # float32: sound up to rounding.
     l32 = [(w.astype(np.float32), b.astype(np.float32)) for w, b in layers]
-    for fn in (ibp, crown):
+    for fn in (ibp, crown, zonotope):
         out_lo, out_hi = (np.asarray(v, np.float64) for v in
                           fn(l32, lo.astype(np.float32), hi.astype(np.float32)))
         tol = 1e-4 * (1 + np.abs(y).max())
@@ -125,7 +126,7 @@ def test_exact_on_point_boxes():
     x = rng.normal(size=(5, 4))
     y = _forward(layers, x)
     with jax.enable_x64(True):
-        for fn in (ibp, crown):
+        for fn in (ibp, crown, zonotope):
             out_lo, out_hi = fn(layers, x, x)
             np.testing.assert_allclose(out_lo, y, atol=1e-12)
             np.testing.assert_allclose(out_hi, y, atol=1e-12)
@@ -140,7 +141,7 @@ def test_leading_batch_shapes_and_flax_params():
     assert [w.shape for w, _ in layers] == [(12, 8), (8, 8), (8, 4)]
     lo = jax.random.normal(jax.random.key(1), (2, 3, 12))
     hi = lo + 0.1
-    for fn in (ibp, crown):
+    for fn in (ibp, crown, zonotope):
         out_lo, out_hi = fn(params, lo, hi)  # MLP params are accepted directly
         assert out_lo.shape == (2, 3, 4) and out_hi.shape == (2, 3, 4)
         flat_lo, flat_hi = fn(layers, lo.reshape(6, 12), hi.reshape(6, 12))
@@ -159,7 +160,7 @@ def test_leading_batch_shapes_and_flax_params():
 def test_bad_input_raises_value_error_naming_it():
     layers = [(np.ones((3, 4)), np.zeros(4)), (np.ones((4, 2)), np.zeros(2))]
     lo, hi = np.zeros((5, 3)), np.ones((5, 3))
-    for fn in (ibp, crown):
+    for fn in (ibp, crown, zonotope):
         with pytest.raises(ValueError, match="lo > hi"):
             fn(layers, hi, lo)
         with pytest.raises(ValueError, match="NaN"):
@@ -181,11 +182,12 @@ def test_large_batches_are_chunked_consistently():
     """Past a chunk size the bounds run in a padded sequential loop; same numbers as small calls."""
     from gara_jax.reach.crown import CHUNK as CROWN_CHUNK
     from gara_jax.reach.ibp import CHUNK as IBP_CHUNK
+    from gara_jax.reach.zonotope import CHUNK as ZONOTOPE_CHUNK
 
     rng = np.random.default_rng(2)
     layers = [(rng.normal(size=(6, 10)).astype(np.float32), np.zeros(10, np.float32)),
               (rng.normal(size=(10, 3)).astype(np.float32), np.zeros(3, np.float32))]
-    for fn, chunk in ((crown, CROWN_CHUNK), (ibp, IBP_CHUNK)):
+    for fn, chunk in ((crown, CROWN_CHUNK), (ibp, IBP_CHUNK), (zonotope, ZONOTOPE_CHUNK)):
         n = 2 * chunk + 3  # two full chunks and a padded one
         lo = rng.normal(size=(n, 6)).astype(np.float32)
         hi = lo + rng.uniform(0, 1, size=lo.shape).astype(np.float32)
@@ -195,3 +197,46 @@ def test_large_batches_are_chunked_consistently():
             small_lo, small_hi = fn(layers, lo[part], hi[part])
             np.testing.assert_allclose(big_lo[part], small_lo, rtol=1e-5, atol=1e-5)
             np.testing.assert_allclose(big_hi[part], small_hi, rtol=1e-5, atol=1e-5)
+
+
+def test_zonotope_by_hand():
+    """DeepZ on ``relu(x) +/- relu(-x)`` over ``x in [-1, 2]``, worked out on paper: the first
+    neuron is ``2/3 x + 1/3 + 1/3 e1``, the second ``1/3 (-x) + 1/3 + 1/3 e2``, and
+    ``x = 1/2 + 3/2 e0``."""
+    lo, hi = np.array([-1.0]), np.array([2.0])
+    hidden = (np.array([[1.0, -1.0]]), np.zeros(2))
+    with jax.enable_x64(True):
+        # |x| = 5/6 + 1/2 e0 + 1/3 e1 + 1/3 e2
+        out = zonotope([hidden, (np.array([[1.0], [1.0]]), np.zeros(1))], lo, hi)
+        np.testing.assert_allclose(np.ravel(out), [-1 / 3, 2.0], atol=1e-12)
+        # x = 1/2 + 3/2 e0 + 1/3 e1 - 1/3 e2
+        out = zonotope([hidden, (np.array([[1.0], [-1.0]]), np.zeros(1))], lo, hi)
+        np.testing.assert_allclose(np.ravel(out), [1 / 2 - 13 / 6, 1 / 2 + 13 / 6], atol=1e-12)
+
+
+def test_zonotope_keeps_the_dependencies_interval_arithmetic_loses():
+    """Two copies of one active neuron subtracted cancel exactly in the zonotope domain (they
+    share every noise symbol; an unstable neuron would get a fresh one each); IBP treats them
+    as independent. Affine networks are exact too."""
+    rng = np.random.default_rng(5)
+    w0 = rng.normal(size=(3, 1))
+    layers = [(np.concatenate([w0, w0], axis=1), np.array([10.0, 10.0])),
+              (np.array([[1.0], [-1.0]]), np.zeros(1))]
+    lo = rng.normal(size=(16, 3))
+    hi = lo + rng.uniform(0.1, 1.0, size=lo.shape)
+    with jax.enable_x64(True):
+        z_lo, z_hi = zonotope(layers, lo, hi)
+        i_lo, i_hi = ibp(layers, lo, hi)
+        np.testing.assert_allclose(z_lo, 0, atol=1e-12)
+        np.testing.assert_allclose(z_hi, 0, atol=1e-12)
+        assert (np.asarray(i_hi - i_lo) > 0).mean() > 0.5
+        # Affine: 3 -> 4 -> 2 with a positive bias that keeps every neuron on.
+        affine = [(np.abs(rng.normal(size=(3, 4))), np.full(4, 10.0)), (rng.normal(size=(4, 2)),
+                                                                          np.zeros(2))]
+        box_lo, box_hi = np.zeros((1, 3)), np.ones((1, 3))
+        w = affine[0][0] @ affine[1][0]
+        centre = 0.5 * w.sum(0) + affine[0][1] @ affine[1][0]
+        radius = 0.5 * np.abs(w).sum(0)
+        out_lo, out_hi = zonotope(affine, box_lo, box_hi)
+        np.testing.assert_allclose(np.ravel(out_lo), centre - radius, atol=1e-10)
+        np.testing.assert_allclose(np.ravel(out_hi), centre + radius, atol=1e-10)

@@ -26,7 +26,7 @@ def test_quick_run_with_two_callers_writes_json(tmp_path):
     result = json.loads(out.read_text())
     rows = result["results"]
     assert {(r["method"], r["batch"], r["callers"]) for r in rows} == {
-        ("ibp", 8, 2), ("crown", 8, 2)}
+        ("ibp", 8, 2), ("crown", 8, 2), ("zonotope", 8, 2)}
     for r in rows:
         assert math.isfinite(r["boxes_per_s_best"]) and r["boxes_per_s_best"] > 0
         assert r["context_switches_per_call"] >= 0

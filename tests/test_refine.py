@@ -60,7 +60,7 @@ def x_intervals(lo, hi):
     return sorted(zip(lo[:, 0].tolist(), hi[:, 0].tolist(), strict=True))
 
 
-@pytest.mark.parametrize("method", ["crown", "ibp"])
+@pytest.mark.parametrize("method", ["crown", "ibp", "zonotope"])
 def test_translation_closed_form(method):
     # x' = x + 1 lands in [2, 3.5] iff x in [1, 2.5]; SPEC's rule finds exactly that here.
     start_lo, start_hi = np.array([0.0, 0, 0, 0]), np.array([4.0, 1, 1, 1])
@@ -207,7 +207,7 @@ def random_case(seed, hidden=(8, 8)):
 
 
 @settings(max_examples=8, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.sampled_from(["crown", "ibp"]),
+@given(st.integers(0, 2**31 - 1), st.sampled_from(["crown", "ibp", "zonotope"]),
        st.sampled_from([0.05, 0.2]))
 def test_pieces_tile_the_start_box_and_are_deterministic(seed, method, ratio):
     params, s_lo, s_hi, t_lo, t_hi = random_case(seed)
@@ -246,7 +246,7 @@ def test_bad_arguments_raise_value_error_naming_them():
     net = translation_net([1.0, 0, 0, 0])
     lo, hi = np.zeros(4), np.ones(4)
     with pytest.raises(ValueError, match="method"):
-        refine(net, lo, hi, lo, hi, method="zonotope")
+        refine(net, lo, hi, lo, hi, method="deeppoly")
     with pytest.raises(ValueError, match="start_lo/start_hi: lo > hi"):
         refine(net, hi, lo, lo, hi)
     with pytest.raises(ValueError, match="target_lo/target_hi: NaN"):

@@ -1,4 +1,4 @@
-"""Set-based reachability: IBP and CROWN output bounds of ReLU MLPs, and goal refinement.
+"""Set-based reachability: IBP, CROWN and zonotope bounds of ReLU MLPs, and goal refinement.
 
 Example:
     >>> import jax, jax.numpy as jnp
@@ -15,5 +15,7 @@ from gara_jax.networks import mlp_layers as layers_from_flax
 from gara_jax.reach.crown import crown
 from gara_jax.reach.ibp import ibp
 from gara_jax.reach.refine import RefineResult, refine, refine_many
+from gara_jax.reach.zonotope import zonotope
 
-__all__ = ["RefineResult", "crown", "ibp", "layers_from_flax", "refine", "refine_many"]
+__all__ = ["RefineResult", "crown", "ibp", "layers_from_flax", "refine", "refine_many",
+           "zonotope"]

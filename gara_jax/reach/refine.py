@@ -35,8 +35,9 @@ from gara_jax.networks import mlp_layers
 from gara_jax.reach._layers import TunedJit, check_layers
 from gara_jax.reach.crown import crown_preactivations
 from gara_jax.reach.ibp import ibp_preactivations
+from gara_jax.reach.zonotope import zonotope_preactivations
 
-METHODS = ("ibp", "crown")
+METHODS = ("ibp", "crown", "zonotope")
 #: What is merged after an analysis: ``"full"``, same-verdict sibling halves and then adjacent
 #: same-verdict boxes until no two share a face; ``"siblings"``, the sibling halves only.
 MERGE_RULES = ("full", "siblings")
@@ -91,7 +92,10 @@ def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final
     goal_hi = jnp.broadcast_to(t_hi, (n, dim))
     lo = jnp.concatenate([s_lo, goal_lo, goal_hi], axis=1)
     hi = jnp.concatenate([s_hi, goal_lo, goal_hi], axis=1)
-    pre = ibp_preactivations(layers, lo, hi)
+    if method == "zonotope":  # the reference's domain, alone (SPEC.md 3.6)
+        pre = zonotope_preactivations(layers, lo, hi)
+    else:
+        pre = ibp_preactivations(layers, lo, hi)
     if method == "crown":
         # Both are sound, so their intersection is too, and never looser than either.
         pre = [boxes.intersect(l1, u1, l2, u2)
@@ -182,7 +186,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         tau1: ``c1`` at or above which a box reaches.
         tau2: ``c2`` at or below which a box does not reach.
         min_volume_ratio: boxes at or below this fraction of ``G_s``'s volume are not split.
-        method: ``"ibp"`` or ``"crown"`` (CROWN intersected with IBP).
+        method: ``"ibp"``, ``"crown"`` (CROWN intersected with IBP) or ``"zonotope"``
+            (:func:`gara_jax.reach.zonotope`, alone: the reference's Ai2 kind of analysis).
         small_box_c1: a box too small to split (or with no width left) reaches iff its ``c1``
             is at least this; ``None``: such a box does not reach.
         coverage: the coverage rule, ``"final"`` or ``"results"``: what a dimension where

@@ -116,6 +116,16 @@ def _variants():
             "`results_min_steps_5000+zonotope` partition",
             rep(res, planning=True, min_steps=5000, refine_method="zonotope"),
             "results_min_steps_5000+zonotope"),
+        "results_min_steps_5000+zonotope_box": (
+            "the same with zonotopes whose unstable ReLUs are replaced by their interval "
+            "[0, u] (a literal reading of SPEC.md 3.6's 'box-approximated'; "
+            "refine_method='zonotope_box')",
+            rep(res, min_steps=5000, refine_method="zonotope_box")),
+        "results_min_steps_5000+zonotope_box_planning_from_q": (
+            "Planning with those bounds, each seed started from the same seed's final "
+            "`results_min_steps_5000+zonotope_box` partition",
+            rep(res, planning=True, min_steps=5000, refine_method="zonotope_box"),
+            "results_min_steps_5000+zonotope_box"),
         "results_min_steps_5000-coverage_final": (
             "the same with the final coverage rule (an empty intersection in any dimension "
             "gives c1 = c2 = 0)", rep(res, min_steps=5000, coverage="final")),

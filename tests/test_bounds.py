@@ -60,6 +60,11 @@ def test_golden_convention_is_pure_crown():
     assert looser > 0
 
 
+def zonotope_box(layers, lo, hi, **kw):
+    return zonotope(layers, lo, hi, relu="box", **kw)
+
+
+BOUNDS = (ibp, crown, zonotope, zonotope_box)
 ARCHS = [(5, 7, 3), (4, 6, 6, 2)]
 
 
@@ -86,7 +91,7 @@ def _forward(layers, x):
 
 @settings(max_examples=25, deadline=None)
 @given(net_and_boxes())
-def test_sampled_outputs_lie_within_both_bounds(case):
+def test_sampled_outputs_lie_within_every_bound(case):
     layers, lo, hi, seed = case
     rng = np.random.default_rng(seed + 1)
     u = rng.uniform(size=(200,) + lo.shape)
@@ -94,12 +99,12 @@ def test_sampled_outputs_lie_within_both_bounds(case):
     x = lo + u * (hi - lo)
     y = _forward(layers, x)  # [200, boxes, out], float64
     with jax.enable_x64(True):
-        for fn in (ibp, crown, zonotope):
+        for fn in BOUNDS:
             out_lo, out_hi = (np.asarray(v) for v in fn(layers, lo, hi))
             assert (y >= out_lo - 1e-9).all() and (y <= out_hi + 1e-9).all(), fn.__name__
     # float32: sound up to rounding.
     l32 = [(w.astype(np.float32), b.astype(np.float32)) for w, b in layers]
-    for fn in (ibp, crown, zonotope):
+    for fn in BOUNDS:
         out_lo, out_hi = (np.asarray(v, np.float64) for v in
                           fn(l32, lo.astype(np.float32), hi.astype(np.float32)))
         tol = 1e-4 * (1 + np.abs(y).max())
@@ -126,7 +131,7 @@ def test_exact_on_point_boxes():
     x = rng.normal(size=(5, 4))
     y = _forward(layers, x)
     with jax.enable_x64(True):
-        for fn in (ibp, crown, zonotope):
+        for fn in BOUNDS:
             out_lo, out_hi = fn(layers, x, x)
             np.testing.assert_allclose(out_lo, y, atol=1e-12)
             np.testing.assert_allclose(out_hi, y, atol=1e-12)
@@ -141,7 +146,7 @@ def test_leading_batch_shapes_and_flax_params():
     assert [w.shape for w, _ in layers] == [(12, 8), (8, 8), (8, 4)]
     lo = jax.random.normal(jax.random.key(1), (2, 3, 12))
     hi = lo + 0.1
-    for fn in (ibp, crown, zonotope):
+    for fn in BOUNDS:
         out_lo, out_hi = fn(params, lo, hi)  # MLP params are accepted directly
         assert out_lo.shape == (2, 3, 4) and out_hi.shape == (2, 3, 4)
         flat_lo, flat_hi = fn(layers, lo.reshape(6, 12), hi.reshape(6, 12))
@@ -160,7 +165,7 @@ def test_leading_batch_shapes_and_flax_params():
 def test_bad_input_raises_value_error_naming_it():
     layers = [(np.ones((3, 4)), np.zeros(4)), (np.ones((4, 2)), np.zeros(2))]
     lo, hi = np.zeros((5, 3)), np.ones((5, 3))
-    for fn in (ibp, crown, zonotope):
+    for fn in BOUNDS:
         with pytest.raises(ValueError, match="lo > hi"):
             fn(layers, hi, lo)
         with pytest.raises(ValueError, match="NaN"):
@@ -240,3 +245,20 @@ def test_zonotope_keeps_the_dependencies_interval_arithmetic_loses():
         out_lo, out_hi = zonotope(affine, box_lo, box_hi)
         np.testing.assert_allclose(np.ravel(out_lo), centre - radius, atol=1e-10)
         np.testing.assert_allclose(np.ravel(out_hi), centre + radius, atol=1e-10)
+
+
+@settings(max_examples=15, deadline=None)
+@given(net_and_boxes())
+def test_box_zonotope_is_never_looser_than_ibp(case):
+    """With the box ReLU every layer's zonotope lies inside IBP's box of that layer (an affine
+    map of a zonotope is bounded by interval arithmetic on its hull), so the output is too."""
+    layers, lo, hi, _ = case
+    with jax.enable_x64(True):
+        z_lo, z_hi = (np.asarray(v) for v in zonotope_box(layers, lo, hi))
+        i_lo, i_hi = (np.asarray(v) for v in ibp(layers, lo, hi))
+    assert (z_lo >= i_lo - 1e-9).all() and (z_hi <= i_hi + 1e-9).all()
+
+
+def test_zonotope_rejects_an_unknown_relu_transformer():
+    with pytest.raises(ValueError, match="relu"):
+        zonotope([(np.ones((1, 1)), np.zeros(1))], np.zeros(1), np.ones(1), relu="chord")

@@ -50,3 +50,19 @@ def test_bad_counts_are_rejected(flag, capsys):
     with pytest.raises(SystemExit):
         bench.parse_args([flag, "0"])
     assert flag in capsys.readouterr().err
+
+
+def test_tightness_on_the_golden_networks(tmp_path):
+    """benchmarks/bounds_tightness.py: one row per golden network; the zonotope box is narrower
+    than IBP's on most outputs (it keeps the dependencies IBP forgets)."""
+    spec = importlib.util.spec_from_file_location(
+        "bounds_tightness", ROOT / "benchmarks" / "bounds_tightness.py")
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    out = tmp_path / "tightness.json"
+    bench.main(["--out", str(out)])
+    rows = json.loads(out.read_text())["results"]
+    assert [r["net"] for r in rows] == ["12-8-8-4", "6-32-32-2", "4-16-4"]
+    for r in rows:
+        assert r["zonotope_narrower_than_ibp"] > 0.8
+        assert r["median_width_crown"] < r["median_width_ibp"]

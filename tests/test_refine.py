@@ -60,7 +60,7 @@ def x_intervals(lo, hi):
     return sorted(zip(lo[:, 0].tolist(), hi[:, 0].tolist(), strict=True))
 
 
-@pytest.mark.parametrize("method", ["crown", "ibp", "zonotope"])
+@pytest.mark.parametrize("method", ["crown", "ibp", "zonotope", "zonotope_box"])
 def test_translation_closed_form(method):
     # x' = x + 1 lands in [2, 3.5] iff x in [1, 2.5]; SPEC's rule finds exactly that here.
     start_lo, start_hi = np.array([0.0, 0, 0, 0]), np.array([4.0, 1, 1, 1])
@@ -207,7 +207,7 @@ def random_case(seed, hidden=(8, 8)):
 
 
 @settings(max_examples=8, deadline=None)
-@given(st.integers(0, 2**31 - 1), st.sampled_from(["crown", "ibp", "zonotope"]),
+@given(st.integers(0, 2**31 - 1), st.sampled_from(["crown", "ibp", "zonotope", "zonotope_box"]),
        st.sampled_from([0.05, 0.2]))
 def test_pieces_tile_the_start_box_and_are_deterministic(seed, method, ratio):
     params, s_lo, s_hi, t_lo, t_hi = random_case(seed)

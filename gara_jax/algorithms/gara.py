@@ -47,7 +47,7 @@ from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
 from gara_jax.algorithms.base import Algorithm, epoch_metrics
 from gara_jax.reach.refine import MERGE_RULES
 
-REFINE_METHODS = ("crown", "ibp", "zonotope")
+REFINE_METHODS = ("crown", "ibp", "zonotope", "zonotope_box")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -343,9 +343,10 @@ class GaraConfig(HandcraftedConfig):
             while the box is above ``min_volume_ratio`` of ``G_s``; a box too small to split
             reaches iff ``c1 >= small_box_c1`` (``None``: never).
         refine_method: the bounds of the analysis (:mod:`gara_jax.reach`). ``"crown"``
-            (intersected with IBP; the default and the presets), ``"ibp"`` or ``"zonotope"``
-            (DeepZ's zonotopes, not intersected: the reference bounds with Ai2 zonotopes,
-            SPEC.md 3.6, with a ReLU transformer SPEC.md does not name).
+            (intersected with IBP; the default and the presets), ``"ibp"``, or zonotopes, not
+            intersected (the reference bounds with Ai2 zonotopes, "box-approximated", SPEC.md
+            3.6, with a ReLU transformer SPEC.md does not name): ``"zonotope"`` (DeepZ's
+            relaxation of an unstable ReLU) or ``"zonotope_box"`` (its interval ``[0, u]``).
         max_jobs_per_seed: analyses per seed per host step; pairs are taken by decreasing
             experience, skipping any that touches a goal being split in the same step.
         skip_unreachable: do not analyse pairs marked unreachable again. The reference means
@@ -489,10 +490,10 @@ class GaraConfig(HandcraftedConfig):
         (0.9, 0.01, 5000, 'crown')
         >>> GaraConfig.reference().memory, GaraConfig.reference().forward_model
         ('windows', 'shared')
-        >>> GaraConfig(refine_method="deeppoly")
+        >>> GaraConfig(refine_method="deeppoly")  # doctest: +ELLIPSIS
         Traceback (most recent call last):
         ...
-        ValueError: refine_method: must be one of ('crown', 'ibp', 'zonotope'), got 'deeppoly'
+        ValueError: refine_method: must be one of ('crown', 'ibp', ...), got 'deeppoly'
     """
 
     max_goals: int = 64  # capacity for refinement (Handcrafted needs 6)

@@ -37,7 +37,7 @@ from gara_jax.reach.crown import crown_preactivations
 from gara_jax.reach.ibp import ibp_preactivations
 from gara_jax.reach.zonotope import zonotope_preactivations
 
-METHODS = ("ibp", "crown", "zonotope")
+METHODS = ("ibp", "crown", "zonotope", "zonotope_box")
 #: What is merged after an analysis: ``"full"``, same-verdict sibling halves and then adjacent
 #: same-verdict boxes until no two share a face; ``"siblings"``, the sibling halves only.
 MERGE_RULES = ("full", "siblings")
@@ -92,8 +92,9 @@ def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final
     goal_hi = jnp.broadcast_to(t_hi, (n, dim))
     lo = jnp.concatenate([s_lo, goal_lo, goal_hi], axis=1)
     hi = jnp.concatenate([s_hi, goal_lo, goal_hi], axis=1)
-    if method == "zonotope":  # the reference's domain, alone (SPEC.md 3.6)
-        pre = zonotope_preactivations(layers, lo, hi)
+    if method.startswith("zonotope"):  # the reference's domain, alone (SPEC.md 3.6)
+        relu = "box" if method == "zonotope_box" else "deepz"
+        pre = zonotope_preactivations(layers, lo, hi, relu)
     else:
         pre = ibp_preactivations(layers, lo, hi)
     if method == "crown":
@@ -186,8 +187,9 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         tau1: ``c1`` at or above which a box reaches.
         tau2: ``c2`` at or below which a box does not reach.
         min_volume_ratio: boxes at or below this fraction of ``G_s``'s volume are not split.
-        method: ``"ibp"``, ``"crown"`` (CROWN intersected with IBP) or ``"zonotope"``
-            (:func:`gara_jax.reach.zonotope`, alone: the reference's Ai2 kind of analysis).
+        method: ``"ibp"``, ``"crown"`` (CROWN intersected with IBP), ``"zonotope"`` or
+            ``"zonotope_box"`` (:func:`gara_jax.reach.zonotope` with ``relu="deepz"`` or
+            ``"box"``, alone: the reference's Ai2 kind of analysis).
         small_box_c1: a box too small to split (or with no width left) reaches iff its ``c1``
             is at least this; ``None``: such a box does not reach.
         coverage: the coverage rule, ``"final"`` or ``"results"``: what a dimension where

@@ -11,10 +11,14 @@ A ReLU on a neuron whose bounds ``[l, u]`` (the zonotope's interval hull) lie on
 is exact. An unstable neuron (``l < 0 < u``) is replaced by the minimal-area zonotope relaxation
 of DeepZ (Singh et al., 2018): ``relu(z)`` lies in ``lam z + mu + mu e_new`` with the chord's
 slope ``lam = u / (u - l)``, ``mu = -lam l / 2`` and a fresh noise symbol ``e_new`` for the
-neuron. SPEC.md does not say which ReLU transformer the reference's Ai2 uses; Ai2's own is a
-case split joined in the zonotope domain, and DeepZ's is the one that domain's authors later
-made its standard. The bounds are pure zonotope bounds (not intersected with IBP), as the
-reference's analysis has them.
+neuron (``relu="deepz"``). SPEC.md does not say which ReLU transformer the reference's Ai2
+uses, only that its zonotopes are "box-approximated"; Ai2's own is a case split joined in the
+zonotope domain, and DeepZ's is the one that domain's authors later made its standard.
+``relu="box"`` reads "box-approximated" literally: an unstable neuron is replaced by its
+interval ``[0, u]`` as a fresh, independent noise symbol (``u/2 + u/2 e_new``), so it keeps no
+dependency on the inputs. That is looser than DeepZ and never looser than IBP on the next
+layer's inputs; the two bracket the unknown. The bounds are pure zonotope bounds (not
+intersected with IBP), as the reference's analysis has them.
 
 Widths: with ``n_in`` inputs and hidden widths ``n_1 .. n_h`` the generator matrix has at most
 ``n_in + n_1 + ... + n_h`` rows (28 for the forward model's 12-8-8-4), so each box costs a few
@@ -22,6 +26,8 @@ small dense products per layer.
 """
 
 from __future__ import annotations
+
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -33,23 +39,31 @@ from gara_jax.reach._layers import bounds_call, chunked
 CHUNK = 512
 
 
-def relu_zonotope(lower, upper):
-    """DeepZ's ReLU transformer on bounds ``[l, u]``: ``(slope, offset)`` per neuron.
+RELU_TRANSFORMERS = ("deepz", "box")
+
+
+def relu_zonotope(lower, upper, relu: str = "deepz"):
+    """A zonotope ReLU transformer on bounds ``[l, u]``: ``(slope, offset)`` per neuron.
 
     ``relu(z)`` lies in ``slope z + offset + offset e`` for ``z`` in ``[l, u]`` and a new noise
     symbol ``e`` in ``[-1, 1]``: ``slope = 1, offset = 0`` when ``l >= 0``; ``0, 0`` when
-    ``u <= 0``; otherwise ``slope = u / (u - l)`` and ``offset = -slope l / 2``.
+    ``u <= 0``; otherwise (``"deepz"``) ``slope = u / (u - l)`` and ``offset = -slope l / 2``,
+    or (``"box"``) ``slope = 0`` and ``offset = u / 2``.
     """
     unstable = (lower < 0) & (upper > 0)
+    stable_slope = (lower >= 0).astype(lower.dtype)
+    if relu == "box":
+        return jnp.where(unstable, 0, stable_slope), jnp.where(unstable, upper * 0.5, 0)
     gap = jnp.where(unstable, upper - lower, 1)
-    slope = jnp.where(unstable, upper / gap, (lower >= 0).astype(lower.dtype))
+    slope = jnp.where(unstable, upper / gap, stable_slope)
     offset = jnp.where(unstable, -slope * lower * 0.5, 0)
     return slope, offset
 
 
-def zonotope_preactivations(layers, lo, hi):
+def zonotope_preactivations(layers, lo, hi, relu: str = "deepz"):
     """Zonotope bounds of every layer's pre-activation for boxes ``lo, hi [B, in]``:
-    ``[(l, u)]`` with shapes ``[B, n_k]``."""
+    ``[(l, u)]`` with shapes ``[B, n_k]``; ``relu`` names the transformer
+    (:func:`relu_zonotope`)."""
     centre = (lo + hi) * 0.5
     gens = jax.vmap(jnp.diag)((hi - lo) * 0.5)  # [B, m, n]: one generator row per noise symbol
     bounds = []
@@ -60,30 +74,28 @@ def zonotope_preactivations(layers, lo, hi):
         lk, uk = centre - radius, centre + radius
         bounds.append((lk, uk))
         if k < len(layers) - 1:
-            slope, offset = relu_zonotope(lk, uk)
+            slope, offset = relu_zonotope(lk, uk, relu)
             centre = centre * slope + offset
             gens = jnp.concatenate([gens * slope[:, None, :], jax.vmap(jnp.diag)(offset)], axis=1)
     return bounds
 
 
-def _zonotope_unchunked(layers, lo, hi):
-    return zonotope_preactivations(layers, lo, hi)[-1]
+def _zonotope(layers, lo, hi, relu="deepz"):
+    return chunked(lambda *a: zonotope_preactivations(*a, relu)[-1], layers, lo, hi, CHUNK)
 
 
-def _zonotope(layers, lo, hi):
-    return chunked(_zonotope_unchunked, layers, lo, hi, CHUNK)
+_zonotope_jit = jax.jit(_zonotope, static_argnames="relu")
 
 
-_zonotope_jit = jax.jit(_zonotope)
-
-
-def zonotope(layers, lo, hi, *, validate: bool = True):
-    """Zonotope bounds (DeepZ's ReLU relaxation) on a ReLU MLP's outputs over input boxes.
+def zonotope(layers, lo, hi, *, relu: str = "deepz", validate: bool = True):
+    """Zonotope bounds on a ReLU MLP's outputs over input boxes (jit-compiled, batched).
 
     Args:
         layers: ``(kernel [in, out], bias [out])`` pairs, ReLU between layers and a linear
             output (or :class:`~gara_jax.networks.MLP` parameters).
         lo, hi: input boxes ``[..., in]``, any leading batch shape.
+        relu: the transformer of an unstable ReLU, ``"deepz"`` (DeepZ's minimal-area
+            relaxation) or ``"box"`` (its interval ``[0, u]``, a fresh noise symbol).
         validate: check for NaN and ``lo > hi`` (a host transfer; off for hot loops).
 
     Returns:
@@ -98,5 +110,10 @@ def zonotope(layers, lo, hi, *, validate: bool = True):
         >>> lo, hi = zonotope(layers, jnp.array([-1.0]), jnp.array([2.0]))  # relu(x) + relu(-x)
         >>> [round(v, 6) for v in (lo.item(), hi.item())]  # sound for |x| on [-1, 2]
         [-0.333333, 2.0]
+        >>> lo, hi = zonotope(layers, jnp.array([-1.0]), jnp.array([2.0]), relu="box")
+        >>> [round(v, 6) for v in (lo.item(), hi.item())]  # [0, 2] + [0, 1]: IBP's box here
+        [0.0, 3.0]
     """
-    return bounds_call(_zonotope_jit, layers, lo, hi, validate)
+    if relu not in RELU_TRANSFORMERS:
+        raise ValueError(f"relu: must be one of {RELU_TRANSFORMERS}, got {relu!r}")
+    return bounds_call(functools.partial(_zonotope_jit, relu=relu), layers, lo, hi, validate)

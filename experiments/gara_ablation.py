@@ -52,7 +52,11 @@ def _variants():
 
     # ``ours``: the default this U-maze study measured, GaraConfig() before the mazes study
     # (docs/mazes.md) moved the analysis to x, y (split_dims=(0, 1), "default+position_splits").
-    ref, ours = GaraConfig.reference(), GaraConfig(split_dims=None)
+    # The rows were measured before the presets took zonotope bounds (refine_method
+    # "zonotope_box") and before the default took min_volume_ratio 0.25: both are pinned to
+    # what was measured, CROWN and 0.05 (the ``+zonotope_box`` rows are today's presets).
+    ref = GaraConfig.reference(refine_method="crown")
+    ours = GaraConfig(split_dims=None, min_volume_ratio=0.05)
     rep = lambda cfg, **kw: dataclasses.replace(cfg, **kw)
     high = lambda cfg, **kw: dataclasses.replace(cfg, high=dataclasses.replace(cfg.high, **kw))
     low = lambda cfg, **kw: dataclasses.replace(cfg, low=dataclasses.replace(cfg.low, **kw))
@@ -60,19 +64,20 @@ def _variants():
         cfg, forward=dataclasses.replace(cfg.forward, **kw))
     ours01, hc01 = rep(ours, low=LOW_REFERENCE), HandcraftedConfig(low=LOW_REFERENCE)
     previous = GaraConfig(
-        split_dims=None, memory="options", memory_capacity=10_000, forward_model="per_job", tau1=0.7, tau2=0.1,
-        small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
+        split_dims=None, min_volume_ratio=0.05, memory="options", memory_capacity=10_000,
+        forward_model="per_job", tau1=0.7, tau2=0.1, small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
         skip_unreachable=True, entry_reward="constant", goal_membership="box",
         reached_at_start=False, stall_penalty=None,
         low=DQNConfig(loss="all_actions", buffer_size=10_000, target_update_every=200),
         high=HighLevelConfig(epsilon_decrement=0.005, tie_break="random"))
     # The mechanism rows were measured on min_steps 1,000, the other value SPEC.md leaves
     # open; the preset takes 5,000 (`results_min_steps_5000`), which reproduces the files.
-    res = GaraConfig.reference(version="results", min_steps=1000)
+    res = GaraConfig.reference(version="results", min_steps=1000, refine_method="crown")
     return {
         # The results version (SPEC.md 3.9), with each of its 3.9 mechanisms reverted in turn.
-        "results": ("GaraConfig.reference(version='results', min_steps=1000): the version that "
-                    "made the authors' result files (SPEC.md 3.9), with min_steps 1,000", res),
+        "results": ("GaraConfig.reference(version='results', min_steps=1000, "
+                    "refine_method='crown'): the version that made the authors' result files "
+                    "(SPEC.md 3.9), with min_steps 1,000 and CROWN bounds", res),
         "results-coverage_final": ("the final coverage rule: an empty intersection in any "
                                    "dimension gives c1 = c2 = 0 (3.6)",
                                    rep(res, coverage="final")),
@@ -91,9 +96,9 @@ def _variants():
                                   rep(res, q_rows_after_split="copied")),
         "results-300_step_episodes": ("episodes of at most 300 steps (the environment's "
                                       "limit), not 302", rep(res, max_episode_steps=None)),
-        "results_min_steps_5000": ("GaraConfig.reference(version='results'): the results "
-                                   "version with min_steps 5,000 (SPEC.md leaves it open: "
-                                   "1,000 or 5,000)", rep(res, min_steps=5000)),
+        "results_min_steps_5000": ("the results version with min_steps 5,000 (SPEC.md leaves "
+                                   "it open: 1,000 or 5,000) and CROWN bounds (the preset "
+                                   "until it took zonotopes)", rep(res, min_steps=5000)),
         "results_min_steps_5000+merge_siblings": (
             "the same, and an analysis merges only same-verdict sibling halves, not adjacent "
             "boxes (merge='siblings'; SPEC.md 3.9.1: the files hold adjacent unmerged boxes)",
@@ -117,8 +122,8 @@ def _variants():
             rep(res, planning=True, min_steps=5000, refine_method="zonotope"),
             "results_min_steps_5000+zonotope"),
         "results_min_steps_5000+zonotope_box": (
-            "the same with zonotopes whose unstable ReLUs are replaced by their interval "
-            "[0, u] (a literal reading of SPEC.md 3.6's 'box-approximated'; "
+            "GaraConfig.reference(version='results'): the same with zonotopes whose unstable "
+            "ReLUs are replaced by their interval [0, u] (our model of Ai2's ReLU, SPEC.md 3.6; "
             "refine_method='zonotope_box')",
             rep(res, min_steps=5000, refine_method="zonotope_box")),
         "results_min_steps_5000+zonotope_box_planning_from_q": (
@@ -139,7 +144,8 @@ def _variants():
         "results_planning": ("the results version's Planning from the two initial goals "
                              "(Planning-from-Q reverted)", rep(res, planning=True)),
         "previous_default": ("GaraConfig() before SPEC revision 2 (session 4)", previous),
-        "reference": ("GaraConfig.reference(): the authors' final maze version", ref),
+        "reference": ("GaraConfig.reference(refine_method='crown'): the authors' final maze "
+                      "version with CROWN bounds (the preset until it took zonotopes)", ref),
         # The reference with one of its mechanisms reverted.
         "ref-options_memory": ("memory of whole options (+ hindsight copies), not windows "
                                "(counts from the memory)",
@@ -188,10 +194,11 @@ def _variants():
         "ref+low_lr_0.001": ("low-level Adam step size 0.001, not 0.01",
                              low(ref, learning_rate=0.001)),
         # This project's default, and each of its differences from the reference reverted.
-        "default": ("GaraConfig(split_dims=None): this project's default of the U-maze "
-                    "study (every dimension split)", ours),
+        "default": ("GaraConfig(split_dims=None, min_volume_ratio=0.05): this project's "
+                    "default of the U-maze study (every dimension split)", ours),
         "default+position_splits": ("the analysis bisects along x, y only (split_dims=(0, 1)): "
-                                    "GaraConfig() since the mazes study",
+                                    "GaraConfig() from the mazes study until it took "
+                                    "min_volume_ratio 0.25",
                                     rep(ours, split_dims=(0, 1))),
         "default-partition_membership": ("closed-box membership (the reference)",
                                          rep(ours, goal_membership="box")),

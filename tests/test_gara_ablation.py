@@ -30,7 +30,8 @@ def test_results_rows_revert_one_mechanism_each():
     """Each ``results-...`` row differs from ``results`` in the fields its name says."""
     variants = ab._variants()
     res = variants["results"][1]
-    assert variants["results_min_steps_5000"][1] == GaraConfig.reference(version="results")
+    assert variants["results_min_steps_5000+zonotope_box"][1] == GaraConfig.reference(
+        version="results")
     flat = lambda c: {**dataclasses.asdict(c), **{f"high.{k}": v for k, v in  # noqa: E731
                                                   dataclasses.asdict(c.high).items()}}
     expect = {"results-coverage_final": {"coverage"}, "results-epoch_cadence": {"cadence"},
@@ -46,7 +47,8 @@ def test_results_rows_revert_one_mechanism_each():
               "results_min_steps_5000+merge_siblings": {"min_steps", "merge"},
               "results_min_steps_5000+ibp": {"min_steps", "refine_method"},
               "results_min_steps_5000+ibp_planning_from_q": {"min_steps", "refine_method",
-                                                             "planning"}}
+                                                             "planning"},
+              "results_min_steps_5000+zonotope_box": {"min_steps", "refine_method"}}
     for name, fields in expect.items():
         a, b = flat(res), flat(variants[name][1])
         assert {k for k in a if a[k] != b[k]} == fields, name

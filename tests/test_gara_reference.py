@@ -266,6 +266,7 @@ def _crafted_host_state(cfg, rows=600):
 
 HOST_CFG = dict(steps_per_epoch=100, eval_episodes=1, min_steps=100, memory_capacity=1024,
                 max_goals=16, low=LOW, refine_method="ibp", tau1=0.9, tau2=0.01,
+                min_volume_ratio=0.05,
                 small_box_c1=0.5, forward=fm.ForwardModelConfig(max_epochs=200),
                 memory="options", forward_model="per_job", split_dims=None)
 

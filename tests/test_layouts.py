@@ -268,11 +268,11 @@ def test_variant_table_pairs_each_variant_with_refinement_off_and_gara():
                             "train_last30k": ci, "goals_end": 3.0, "splits": 0.5}}
 
     runs = {"u_maze": {"gara": run([0.5, 0.5]), "gara_no_refinement": run([0.25, 0.75]),
-                       "gara+two_cuts": run([1.0, 1.0])},
+                       "gara+one_cut": run([1.0, 1.0])},
             "labyrinth": {"gara": run([1.0, 1.0])}}
     text = mazes.variant_table(runs)
-    row = next(line for line in text.splitlines() if "gara+two_cuts" in line)
+    row = next(line for line in text.splitlines() if "gara+one_cut" in line)
     # 1 - (0.25, 0.75) = (0.75, 0.25): mean 0.50, interval t(0.975, 1) x 0.354 / sqrt(2) = 3.18.
-    assert row.startswith("| u_maze | `gara+two_cuts` | 1.00 ± 0.00 | 1.00 ± 0.00 | 0.50 ± 3.18 "
+    assert row.startswith("| u_maze | `gara+one_cut` | 1.00 ± 0.00 | 1.00 ± 0.00 | 0.50 ± 3.18 "
                           "| 0.50 ± 0.00 | 3.0 | 0.5 |")
     assert "labyrinth" not in text and mazes.variant_table({"u_maze": {}}) == ""

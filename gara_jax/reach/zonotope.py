@@ -11,14 +11,16 @@ A ReLU on a neuron whose bounds ``[l, u]`` (the zonotope's interval hull) lie on
 is exact. An unstable neuron (``l < 0 < u``) is replaced by the minimal-area zonotope relaxation
 of DeepZ (Singh et al., 2018): ``relu(z)`` lies in ``lam z + mu + mu e_new`` with the chord's
 slope ``lam = u / (u - l)``, ``mu = -lam l / 2`` and a fresh noise symbol ``e_new`` for the
-neuron (``relu="deepz"``). SPEC.md does not say which ReLU transformer the reference's Ai2
-uses, only that its zonotopes are "box-approximated"; Ai2's own is a case split joined in the
-zonotope domain, and DeepZ's is the one that domain's authors later made its standard.
-``relu="box"`` reads "box-approximated" literally: an unstable neuron is replaced by its
-interval ``[0, u]`` as a fresh, independent noise symbol (``u/2 + u/2 e_new``), so it keeps no
-dependency on the inputs. That is looser than DeepZ and never looser than IBP on the next
-layer's inputs; the two bracket the unknown. The bounds are pure zonotope bounds (not
-intersected with IBP), as the reference's analysis has them.
+neuron (``relu="deepz"``), the transformer the zonotope domain's authors later made its
+standard. ``relu="box"`` replaces an unstable neuron by its interval ``[0, u]`` on a fresh,
+independent noise symbol (``u/2 + u/2 e_new``), so it keeps no dependency on the inputs:
+usually looser than DeepZ, and never looser than IBP. It is our model of Ai2's own ReLU, a
+case split (``z >= 0`` kept, ``z < 0`` set to 0) joined in the zonotope domain: the usual
+join keeps a noise coefficient only where both branches agree, and on the neuron they never
+do (``g`` against 0), so the neuron leaves the join as the interval hull of ``[0, u]`` and
+``{0}`` on a new symbol, while the other neurons keep theirs. SPEC.md names Ai2 but not its
+join, so this is a reading, not a fact of the reference. The bounds are pure zonotope bounds
+(not intersected with IBP), as the reference's analysis has them.
 
 Widths: with ``n_in`` inputs and hidden widths ``n_1 .. n_h`` the generator matrix has at most
 ``n_in + n_1 + ... + n_h`` rows (28 for the forward model's 12-8-8-4), so each box costs a few

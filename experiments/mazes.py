@@ -81,6 +81,10 @@ VARIANTS = {
                                      "fitted until its loss is stable "
                                      "(forward_model='per_job')",
                                      {"forward_model": "per_job", "min_volume_ratio": 0.05}),
+    "gara+zonotope_box": ("the presets' bounds: zonotopes with an unstable ReLU replaced by "
+                          "its interval, our model of the authors' Ai2 (SPEC.md 3.6; "
+                          "refine_method='zonotope_box'), not CROWN",
+                          {"refine_method": "zonotope_box"}),
     "gara+episode_cadence": ("the trigger, forward-model step and analysis after every "
                              "episode (cadence='episode')", {"cadence": "episode"}),
     "gara+fine_cuts+cumulative_counts": (

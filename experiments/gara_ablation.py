@@ -65,9 +65,10 @@ def _variants():
     ours01, hc01 = rep(ours, low=LOW_REFERENCE), HandcraftedConfig(low=LOW_REFERENCE)
     previous = GaraConfig(
         split_dims=None, min_volume_ratio=0.05, memory="options", memory_capacity=10_000,
-        forward_model="per_job", tau1=0.7, tau2=0.1, small_box_c1=None, split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy",
-        skip_unreachable=True, entry_reward="constant", goal_membership="box",
-        reached_at_start=False, stall_penalty=None,
+        forward_model="per_job", tau1=0.7, tau2=0.1, small_box_c1=None,
+        split_epsilon_boost=1.0, relabel_replay=False, q_columns="copy", skip_unreachable=True,
+        entry_reward="constant", goal_membership="box", reached_at_start=False,
+        stall_penalty=None,
         low=DQNConfig(loss="all_actions", buffer_size=10_000, target_update_every=200),
         high=HighLevelConfig(epsilon_decrement=0.005, tie_break="random"))
     # The mechanism rows were measured on min_steps 1,000, the other value SPEC.md leaves

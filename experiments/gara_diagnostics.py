@@ -223,7 +223,8 @@ def parse_args(argv=None) -> argparse.Namespace:
     p.add_argument("--seeds", type=int, default=20, help="seeds per run (0..n-1)")
     p.add_argument("--steps", type=int, default=120_000, help="environment steps per seed")
     p.add_argument("--out", default="results/gara_diagnostics", help="output directory")
-    p.add_argument("--refine-method", choices=("crown", "ibp", "zonotope"), default="crown")
+    p.add_argument("--refine-method", choices=("crown", "ibp", "zonotope", "zonotope_box"),
+                   default="crown")
     p.add_argument("--planning", action="store_true", help="planner high level in every run")
     p.add_argument("--goal-membership", choices=("box", "partition"), default="box",
                    help="when the low level counts as inside its target (see HandcraftedConfig)")

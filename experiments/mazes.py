@@ -55,8 +55,9 @@ import numpy as np
 
 MAZES = ("u_maze", "four_rooms", "u_maze_6", "big_u_maze", "labyrinth")
 METHODS = ("gara", "gara_no_refinement", "handcrafted", "hiro", "hiro_paper")
-#: GARA variants for the refinement study, each ``GaraConfig()`` with one mechanism changed
-#: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides).
+#: GARA variants for the refinement study, each ``GaraConfig()`` with what its name says
+#: changed (``--methods NAME``; not in the default set): name -> (what it changes, the
+#: overrides).
 VARIANTS = {
     # Measured on the default before it took min_volume_ratio 0.25: those rows keep the 0.05
     # of their runs ("fine_cuts"), so each differs from today's ``gara`` in what its name says.

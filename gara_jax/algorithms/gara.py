@@ -276,7 +276,7 @@ class GaraConfig(HandcraftedConfig):
 
     ``GaraConfig()`` is this project's default and :meth:`reference` the authors' final maze
     version. The default is the reference with nine changes, the first six measured on the
-    U-maze by ``python -m experiments.gara_ablation`` (docs/gara_ablation.md), the next two
+    U-maze by ``python -m experiments.gara_ablation`` (docs/gara_ablation.md), the other three
     across the mazes by ``python -m experiments.mazes`` (docs/mazes.md):
 
     - ``relabel_replay=False``: no hindsight relabelling of the low-level replay after a split

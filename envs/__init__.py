@@ -12,6 +12,7 @@ Importing this package registers the Gymnasium ids (``gara_jax/UMaze-v0`` and fr
 
 from envs.layouts import GYM_IDS, LAYOUTS
 from envs.maze import (
+    COLLISION_RULES,
     EnvParams,
     EnvState,
     Maze,
@@ -60,18 +61,42 @@ def names() -> tuple[str, ...]:
     return ENV_NAMES + tuple(_REGISTERED)
 
 
-def make(name: str, **overrides):
+def validate_collision(name: str, collision: str) -> None:
+    """Raise ``ValueError`` (field ``collision``) unless environment ``name`` has these rules.
+
+    Every environment has the ``"reference"`` rules; the other :data:`COLLISION_RULES` exist
+    for the kinematic layouts only.
+
+    Example:
+        >>> validate_collision("point_u_maze", "final")
+        Traceback (most recent call last):
+        ...
+        ValueError: collision: 'final' rules exist for the kinematic layouts only, not 'point_u_maze'
+    """
+    if collision not in COLLISION_RULES:
+        raise ValueError(f"collision: must be one of {COLLISION_RULES}, got {collision!r}")
+    if collision != "reference" and name not in LAYOUTS:
+        raise ValueError(f"collision: {collision!r} rules exist for the kinematic layouts only, "
+                         f"not {name!r}")
+
+
+def make(name: str, collision: str = "reference", **overrides):
     """``(env, params)`` for a name of :func:`names`; keyword overrides replace fields.
 
-    The kinematic layouts of SPEC.md's table give a :class:`Maze`; ``"point_u_maze"`` gives
-    the brax-simulated :class:`envs.point_maze.PointMaze` (brax is imported only then). Raises
-    ``ValueError`` listing the valid names for an unknown name.
+    The kinematic layouts of SPEC.md's table give a :class:`Maze`, whose ``collision`` keyword
+    (``"reference"``, the default, or ``"final"``; see :class:`Maze`) picks the wall rules;
+    ``"point_u_maze"`` gives the brax-simulated :class:`envs.point_maze.PointMaze` (brax is
+    imported only then). Raises ``ValueError`` listing the valid names for an unknown name, and
+    for a ``collision`` other than ``"reference"`` on an environment that is not a layout.
 
     Example:
         >>> env, params = make("four_rooms")
         >>> env.num_actions, params.walls.shape
         (4, (4, 4))
+        >>> make("u_maze", collision="final")[0]
+        Maze('u_maze', collision='final')
     """
+    validate_collision(name, collision)
     if name == "point_u_maze":
         from envs.point_maze import make_point_maze
 
@@ -80,13 +105,13 @@ def make(name: str, **overrides):
         return _REGISTERED[name](**overrides)
     if name not in LAYOUTS:
         raise ValueError(f"unknown environment {name!r}; valid names: {', '.join(names())}")
-    params = make_params(name, **overrides)
-    return Maze(name), params
+    return Maze(name, collision=collision), make_params(name, **overrides)
 
 
 from envs import gym_adapter as _gym_adapter  # noqa: E402,F401  (registers the gymnasium ids)
 
 __all__ = [
+    "COLLISION_RULES",
     "GYM_IDS",
     "LAYOUTS",
     "ENV_NAMES",
@@ -97,6 +122,7 @@ __all__ = [
     "make",
     "names",
     "register",
+    "validate_collision",
     "make_params",
     "random_rollout",
     "state_from_vector",

@@ -2,7 +2,8 @@
 
 The dynamics follow SPEC.md section 1 exactly, including the reference's quirks (the damping
 asymmetry for small negative velocities, "bounds first, then walls in list order", and agents
-stuck on a wall face). Everything here works under ``jit``, ``vmap`` and ``lax.scan``; the
+stuck on a wall face); ``Maze(name, collision="final")`` has the authors' final collision
+rules instead (SPEC.md's documented alternative). Everything here works under ``jit``, ``vmap`` and ``lax.scan``; the
 computation runs in the default float dtype (float32, or float64 under ``jax_enable_x64``).
 
 Example:
@@ -34,6 +35,13 @@ DAMPING = 0.05  # decay of the other component per step
 MAX_SPEED = 1.0
 
 _U_MAZE = LAYOUT_SPECS["u_maze"]
+
+#: Collision rules a :class:`Maze` offers. ``"reference"`` (the default): SPEC.md section 1
+#: steps 3-5, the rules of the code that made the authors' result files and the golden data.
+#: ``"final"``: the authors' final maze code's rules, SPEC.md's documented alternative (walls
+#: checked after a bound clamp too, a contact only at ``t = 0`` lets the agent leave a face,
+#: the wall entered first is the one hit).
+COLLISION_RULES = ("reference", "final")
 
 
 def _default_float():
@@ -377,6 +385,42 @@ def _stop_code(x, y, vx, vy, params: EnvParams) -> jax.Array:
     return num / den
 
 
+def _move_final(x, y, vx, vy, params: EnvParams):
+    """The move under the authors' final collision rules: ``(x, y, vx, vy, hit_bound, hit_wall)``.
+
+    SPEC.md section 1 names three changes to the rules of :func:`_stop_code`, read here as
+    :func:`envs.reference.final_rules_step` reads them (the plain-Python cross-check): the move
+    is the segment from the state to the candidate clamped to ``[0, n]^2``, and walls are
+    checked on it even when a bound was crossed; a segment that meets a wall only at ``t = 0``
+    (leaving a face the agent rests on) is free; the wall hit is the one entered first over all
+    walls (list order on a tie). A collision stops the agent at the entry point, at rest.
+    """
+    dtype = x.dtype
+    n = jnp.asarray(params.n, dtype)
+    cx, cy = x + vx, y + vy
+    hit_bound = (cx < 0) | (cx > n) | (cy < 0) | (cy > n)
+    # Clamped candidate and the displacement to it (exactly ``v`` when nothing was clamped).
+    kx, ky = jnp.clip(cx, 0.0, n), jnp.clip(cy, 0.0, n)
+    dx, dy = jnp.where(hit_bound, kx - x, vx), jnp.where(hit_bound, ky - y, vy)
+    walls = jnp.asarray(params.walls, dtype)
+    best = jnp.full_like(x, jnp.inf)
+    for i in range(walls.shape[0]):
+        _, (tx_in, tx_out) = _axis_times(x, dx, walls[i, 0], walls[i, 1])
+        _, (ty_in, ty_out) = _axis_times(y, dy, walls[i, 2], walls[i, 3])
+        t_enter = jnp.maximum(jnp.maximum(tx_in, ty_in), 0.0)
+        t_leave = jnp.minimum(jnp.minimum(tx_out, ty_out), 1.0)
+        hit = (t_enter <= t_leave) & (t_leave > 0) & (t_enter < best)
+        best = jnp.where(hit, t_enter, best)
+    hit_wall = best <= 1.0
+    t = jnp.where(hit_wall, best, 1.0)
+    new_x = jnp.where(hit_wall, x + dx * t, jnp.where(hit_bound, kx, cx))
+    new_y = jnp.where(hit_wall, y + dy * t, jnp.where(hit_bound, ky, cy))
+    stopped = hit_wall | hit_bound
+    zero = jnp.zeros_like(vx)
+    return (new_x, new_y, jnp.where(stopped, zero, vx), jnp.where(stopped, zero, vy),
+            hit_bound & ~hit_wall, hit_wall)
+
+
 def _computed_once(flag: jax.Array) -> jax.Array:
     """``flag`` (bool) unchanged, but computed once per step rather than once per consumer.
 
@@ -412,6 +456,11 @@ class Maze:
 
     ``key`` arguments are accepted for gymnax compatibility; the maze itself is deterministic.
 
+    ``collision`` picks the wall rules (:data:`COLLISION_RULES`): ``"reference"``, SPEC.md
+    section 1 as written (the golden data's rules), or ``"final"``, the authors' final maze
+    code's rules (see :func:`envs.reference.final_rules_step`). ``envs.make(name,
+    collision="final")`` builds the latter.
+
     Example:
         >>> import jax, jax.numpy as jnp, envs
         >>> env, params = envs.make("u_maze")
@@ -425,18 +474,24 @@ class Maze:
 
     num_actions = NUM_ACTIONS
 
-    def __init__(self, name: str = "u_maze"):
+    def __init__(self, name: str = "u_maze", collision: str = "reference"):
+        if collision not in COLLISION_RULES:
+            raise ValueError(f"collision: must be one of {COLLISION_RULES}, got {collision!r}")
         self.name = name
+        self.collision = collision
 
     def __repr__(self) -> str:
-        return f"Maze({self.name!r})"
+        if self.collision == "reference":
+            return f"Maze({self.name!r})"
+        return f"Maze({self.name!r}, collision={self.collision!r})"
 
     # Value semantics, so that jit caches hit when a Maze is a static argument.
     def __eq__(self, other) -> bool:
-        return type(other) is type(self) and other.name == self.name
+        return (type(other) is type(self) and other.name == self.name
+                and other.collision == self.collision)
 
     def __hash__(self) -> int:
-        return hash((type(self), self.name))
+        return hash((type(self), self.name, self.collision))
 
     @property
     def default_params(self) -> EnvParams:
@@ -495,12 +550,15 @@ class Maze:
         """``(next_state, reward, terminated, truncated, hit_bound, hit_wall)``, per coordinate."""
         action = jnp.clip(jnp.asarray(action).astype(jnp.int32), 0, NUM_ACTIONS - 1)
         vx, vy = _accelerate(state.vx, state.vy, action)
-        code = _stop_code(state.x, state.y, vx, vy, params)
-        n = jnp.asarray(params.n, vx.dtype)
-        x, vx = _apply_stop(state.x, vx, code, n)
-        y, vy = _apply_stop(state.y, vy, code, n)
-        hit_bound = code == _HIT_BOUND
-        hit_wall = code <= 1.0
+        if self.collision == "final":
+            x, y, vx, vy, hit_bound, hit_wall = _move_final(state.x, state.y, vx, vy, params)
+        else:
+            code = _stop_code(state.x, state.y, vx, vy, params)
+            n = jnp.asarray(params.n, vx.dtype)
+            x, vx = _apply_stop(state.x, vx, code, n)
+            y, vy = _apply_stop(state.y, vy, code, n)
+            hit_bound = code == _HIT_BOUND
+            hit_wall = code <= 1.0
         time = state.time + 1
 
         dtype = x.dtype

@@ -59,18 +59,7 @@ def reference_step(
         >>> reference_step((0.9, 0.5, 0.2, 0.0), 1, 3.0, [(1.0, 1.5, -1.0, 2.0)])
         (1.0, 0.5, 0.0, 0.0)
     """
-    x, y, vx, vy = (float(v) for v in state)
-    if action == 0:
-        vx, vy = max(-1.0, vx - 0.1), _damp(vy)
-    elif action == 1:
-        vx, vy = min(1.0, vx + 0.1), _damp(vy)
-    elif action == 2:
-        vx, vy = _damp(vx), min(1.0, vy + 0.1)
-    elif action == 3:
-        vx, vy = _damp(vx), max(-1.0, vy - 0.1)
-    else:
-        raise ValueError(f"action must be 0, 1, 2 or 3, got {action!r}")
-
+    x, y, vx, vy = _accelerate(state, action)
     nx, ny = x + vx, y + vy
     if nx < 0 or nx > n or ny < 0 or ny > n:
         nx = 0.0 if nx < 0 else (n if nx > n else nx)
@@ -85,6 +74,71 @@ def reference_step(
         if t_enter <= t_leave:
             return x + vx * t_enter, y + vy * t_enter, 0.0, 0.0
     return nx, ny, vx, vy
+
+
+def final_rules_step(
+    state: Sequence[float], action: int, n: float, walls: Sequence[Sequence[float]]
+) -> State:
+    """:func:`reference_step` under the authors' *final* collision rules (SPEC.md section 1).
+
+    Three changes to the rules of :func:`reference_step`, as SPEC states them, read as follows:
+
+    - walls are checked even when the candidate position left the maze: the move is the
+      segment from the state to the clamped candidate;
+    - a contact only at ``t = 0`` (the segment touches a wall in the single point it starts
+      from, i.e. the agent moves away from a face it rests on) is not a collision;
+    - the wall hit is the one entered first (the smallest entry time over all walls, the
+      first in list order on a tie), not the first in list order.
+
+    A collision stops the agent where it enters the wall, at rest, as before.
+
+    Example:
+        >>> wall = [(1.0, 1.5, -1.0, 2.0)]
+        >>> reference_step((1.0, 0.5, 0.0, 0.0), 0, 3.0, wall)  # stuck on the face
+        (1.0, 0.5, 0.0, 0.0)
+        >>> [round(v, 3) for v in final_rules_step((1.0, 0.5, 0.0, 0.0), 0, 3.0, wall)]
+        [0.9, 0.5, -0.1, 0.0]
+        >>> final_rules_step((0.5, 0.0, 0.7, 0.0), 3, 3.0, wall)  # no passing into the wall
+        (1.0, 0.0, 0.0, 0.0)
+    """
+    x, y, vx, vy = _accelerate(state, action)
+    nx, ny = x + vx, y + vy
+    clamped = nx < 0 or nx > n or ny < 0 or ny > n
+    if clamped:
+        nx = 0.0 if nx < 0 else (n if nx > n else nx)
+        ny = 0.0 if ny < 0 else (n if ny > n else ny)
+        dx, dy = nx - x, ny - y
+    else:
+        dx, dy = vx, vy
+    best = math.inf
+    for x_lo, x_hi, y_lo, y_hi in walls:
+        tx_lo, tx_hi = _axis_interval(x, dx, x_lo, x_hi)
+        ty_lo, ty_hi = _axis_interval(y, dy, y_lo, y_hi)
+        t_enter = max(0.0, tx_lo, ty_lo)
+        t_leave = min(1.0, tx_hi, ty_hi)
+        if t_enter <= t_leave and t_leave > 0 and t_enter < best:
+            best = t_enter
+    if best <= 1.0:
+        return x + dx * best, y + dy * best, 0.0, 0.0
+    if clamped:
+        return nx, ny, 0.0, 0.0
+    return nx, ny, vx, vy
+
+
+def _accelerate(state: Sequence[float], action: int) -> State:
+    """Position unchanged, velocity after the push and the damping (SPEC step 1)."""
+    x, y, vx, vy = (float(v) for v in state)
+    if action == 0:
+        vx, vy = max(-1.0, vx - 0.1), _damp(vy)
+    elif action == 1:
+        vx, vy = min(1.0, vx + 0.1), _damp(vy)
+    elif action == 2:
+        vx, vy = _damp(vx), min(1.0, vy + 0.1)
+    elif action == 3:
+        vx, vy = _damp(vx), max(-1.0, vy - 0.1)
+    else:
+        raise ValueError(f"action must be 0, 1, 2 or 3, got {action!r}")
+    return x, y, vx, vy
 
 
 def _damp_numpy(v: np.ndarray) -> np.ndarray:

@@ -132,6 +132,17 @@ def _variants():
             "`results_min_steps_5000+zonotope_box` partition",
             rep(res, planning=True, min_steps=5000, refine_method="zonotope_box"),
             "results_min_steps_5000+zonotope_box"),
+        "results_min_steps_5000+zonotope_box+collision_final": (
+            "GaraConfig.reference(version='results') in the maze with the authors' final "
+            "collision rules (collision='final'; SPEC.md 1: the files were made under the "
+            "reference rules, the other value of that unknown)",
+            rep(res, min_steps=5000, refine_method="zonotope_box", collision="final")),
+        "results_min_steps_5000+zonotope_box+collision_final_planning_from_q": (
+            "Planning under the final collision rules, each seed started from the same seed's "
+            "final `results_min_steps_5000+zonotope_box+collision_final` partition",
+            rep(res, planning=True, min_steps=5000, refine_method="zonotope_box",
+                collision="final"),
+            "results_min_steps_5000+zonotope_box+collision_final"),
         "results_min_steps_5000-coverage_final": (
             "the same with the final coverage rule (an empty intersection in any dimension "
             "gives c1 = c2 = 0)", rep(res, min_steps=5000, coverage="final")),

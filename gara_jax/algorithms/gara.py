@@ -110,6 +110,9 @@ class HandcraftedConfig:
         max_episode_steps: if not ``None``, training and evaluation episodes are truncated
             after this many steps instead of the environment's own limit (300 on the
             U-maze; SPEC.md 3.1 and 3.9.3 say the reference's loop lets an episode run 302).
+        collision: the maze's wall rules (``envs.COLLISION_RULES``, layouts only):
+            ``"reference"``, SPEC.md section 1 as written (the code that made the authors'
+            result files, 3.9), or ``"final"``, the authors' final maze code's rules.
         low: the low-level DQN's hyper-parameters.
         high: the high level's hyper-parameters.
         planning: choose goals with the shortest-path planner instead of the Q-table.
@@ -204,6 +207,7 @@ class HandcraftedConfig:
     steps_per_epoch: int = 3000
     eval_episodes: int = 10
     max_episode_steps: int | None = None
+    collision: str = "reference"
     low: DQNConfig = LOW_DEFAULT
     high: hl.HighLevelConfig = hl.HighLevelConfig()
     planning: bool = False
@@ -766,6 +770,7 @@ def _validate_common(cfg):
                              f"in max_goals={cfg.max_goals}")
     if cfg.max_episode_steps is not None:
         _positive_int(cfg, "max_episode_steps")
+    envs.validate_collision(cfg.env, cfg.collision)
     if not isinstance(cfg.low, DQNConfig):
         raise ValueError(f"low: must be a DQNConfig, got {cfg.low!r}")
     if not isinstance(cfg.high, hl.HighLevelConfig):
@@ -1018,7 +1023,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
     env_overrides = {}
     if config.max_episode_steps is not None:
         env_overrides["max_steps"] = int(config.max_episode_steps)
-    env, env_params = envs.make(config.env, **env_overrides)
+    env, env_params = envs.make(config.env, collision=config.collision, **env_overrides)
     max_steps = int(env_params.max_steps)
     dim = int(np.prod(env.observation_space(env_params).shape))
     if refining and config.split_dims is not None and max(config.split_dims) >= dim:

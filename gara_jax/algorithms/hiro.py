@@ -105,6 +105,7 @@ class HiroConfig:
     """
 
     env: str = "u_maze"
+    collision: str = "reference"  # the maze's wall rules (see GaraConfig.collision)
     k: int = 5  # environment steps per high-level decision (HIRO's c)
     steps_per_epoch: int = 3000  # a multiple of k
     eval_episodes: int = 10
@@ -152,6 +153,7 @@ class HiroConfig:
     def __post_init__(self):
         if self.env not in envs.ENV_NAMES:
             raise ValueError(f"env: unknown environment {self.env!r}; valid: {envs.ENV_NAMES}")
+        envs.validate_collision(self.env, self.collision)
         for name in ("k", "steps_per_epoch", "eval_episodes"):
             value = getattr(self, name)
             if not isinstance(value, int) or value <= 0:
@@ -385,7 +387,7 @@ def make_hiro(config: HiroConfig) -> Algorithm:
     sampled goals the relabelling left unchanged), ``goal_distance`` (mean distance to the target
     left when an option ends) and ``intrinsic_reward`` (mean per step).
     """
-    env, env_params = envs.make(config.env)
+    env, env_params = envs.make(config.env, collision=config.collision)
     obs_dim, k = 4, config.k
     max_steps = int(env_params.max_steps)
     relative = config.goal_space == "relative"

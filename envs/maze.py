@@ -3,8 +3,9 @@
 The dynamics follow SPEC.md section 1 exactly, including the reference's quirks (the damping
 asymmetry for small negative velocities, "bounds first, then walls in list order", and agents
 stuck on a wall face); ``Maze(name, collision="final")`` has the authors' final collision
-rules instead (SPEC.md's documented alternative). Everything here works under ``jit``, ``vmap`` and ``lax.scan``; the
-computation runs in the default float dtype (float32, or float64 under ``jax_enable_x64``).
+rules instead (SPEC.md's documented alternative). Everything here works under ``jit``,
+``vmap`` and ``lax.scan``; the computation runs in the default float dtype (float32, or
+float64 under ``jax_enable_x64``).
 
 Example:
     >>> import jax, envs

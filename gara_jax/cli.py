@@ -73,7 +73,10 @@ def main(argv: list[str] | None = None) -> int:
 # ----------------------------------------------------------------------------------------------
 
 # SPEC.md section 1: U-maze, from the start, 300 steps (reference rules, 20,000 episodes each).
-_REFERENCE_FIGURES = {"u_maze": {0.0: (8.9, 206), 0.7: (61.0, 152)}}
+# SPEC.md section 1, per (layout, collision rules): success % and mean successful length (the
+# final rules' figures come without lengths).
+_REFERENCE_FIGURES = {("u_maze", "reference"): {0.0: (8.9, 206), 0.7: (61.0, 152)},
+                      ("u_maze", "final"): {0.0: (14.9, None), 0.7: (71.2, None)}}
 
 
 def _positive_int(text: str) -> int:
@@ -99,6 +102,8 @@ def _demo_arguments(parser: argparse.ArgumentParser) -> None:
         "--episodes", type=_positive_int, default=2000, help="episodes per policy (default 2000)"
     )
     parser.add_argument("--seed", type=int, default=0, help="PRNG seed")
+    parser.add_argument("--collision", default="reference", choices=("reference", "final"),
+                        help="wall rules of a layout (SPEC.md 1; default reference)")
     parser.add_argument(
         "--sticky-prob",
         type=_probability,
@@ -116,7 +121,7 @@ def _demo(args: argparse.Namespace) -> int:
     import envs
     from envs.maze import random_rollout
 
-    env, params = envs.make(args.env)
+    env, params = envs.make(args.env, collision=args.collision)
     num_steps = int(params.max_steps)
     params = jax.device_put(params)
     rollouts = jax.jit(
@@ -152,12 +157,14 @@ def _demo(args: argparse.Namespace) -> int:
         print(
             f"| {name} | {100 * rate:.1f}% ± {100 * stderr:.1f} | {mean_len} | {steps_per_s:,.0f} |"
         )
-    reference = _REFERENCE_FIGURES.get(args.env)
+    reference = _REFERENCE_FIGURES.get((args.env, args.collision))
     if reference is not None:
+        steps = lambda length: "" if length is None else f" ({length} steps)"
+        rules = "" if args.collision == "reference" else f", {args.collision} rules"
         (u_rate, u_len), (s_rate, s_len) = reference[0.0], reference[0.7]
         print(
-            f"Reference (SPEC.md): uniform {u_rate}% ({u_len} steps), "
-            f"sticky p=0.7 {s_rate}% ({s_len} steps)."
+            f"Reference (SPEC.md{rules}): uniform {u_rate}%{steps(u_len)}, "
+            f"sticky p=0.7 {s_rate}%{steps(s_len)}."
         )
     return 0
 

@@ -24,8 +24,15 @@ def test_demo_prints_rates_and_throughput(capsys):
     assert "steps/s" in out and "Reference (SPEC.md)" in out
 
 
+def test_demo_takes_the_final_collision_rules(capsys):
+    argv = ["demo", "--collision", "final", "--episodes", "300", "--seed", "1"]
+    assert cli.main(argv) == 0
+    assert "Reference (SPEC.md, final rules): uniform 14.9%" in capsys.readouterr().out
+
+
 def test_demo_rejects_bad_arguments(capsys):
     for argv in (
+        ["demo", "--collision", "strict"],
         ["demo", "--episodes", "0"],
         ["demo", "--env", "nope"],
         ["demo", "--sticky-prob", "1.5"],

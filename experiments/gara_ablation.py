@@ -375,6 +375,8 @@ def summarize_run(result, total_steps: int) -> dict:
         "splits": float(per_seed("splits")) if host else 0.0,
         "reaches": float(per_seed("reaches")) if host else 0.0,
         "no_reach": float(per_seed("no_reach")) if host else 0.0,
+        "exit_analysed": float(per_seed("exit_analysed")) if host else 0.0,
+        "exit_splits": float(per_seed("exit_splits")) if host else 0.0,
         "episodes_min": int(min(n_episodes)),
         "greedy_outcomes": greedy_outcomes(result),
         "wall_s": round(result.wall_time_s, 1),

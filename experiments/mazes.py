@@ -92,6 +92,9 @@ VARIANTS = {
         "fine cuts, and pair counts kept per goal index, never recomputed from the memory, so "
         "a pair's count survives a split of the other goal (pair_counts='cumulative', the "
         "authors' counts)", {"pair_counts": "cumulative", "min_volume_ratio": 0.05}),
+    "gara+exit_analysis": ("also analyse the goal holding the exit against a box around the "
+                           "exit (exit_analysis=True: the one hop the partition does not "
+                           "represent)", {"exit_analysis": True}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -148,6 +148,26 @@ def test_apply_split_capacity_and_plain_verdicts():
     assert not seed["unreachable"].any() and np.array_equal(seed["q"], q)
 
 
+def test_exit_split_keeps_the_way_to_the_exit_piece_open():
+    """An exit analysis (s == d) splits G_s like any analysis, but its verdicts are about the
+    exit box: the non-reaching piece keeps its copied Q value and marks towards the piece
+    that kept index s; only (s, s) is marked. A normal split zeroes that value."""
+    reach_lo, reach_hi = _boxes((2, 3, 0, 3))
+    miss_lo, miss_hi = _boxes((1, 2, 0, 3))
+    verdict = _Verdict(reach_lo, reach_hi, miss_lo, miss_hi)
+    seed = _seed(5)
+    assert _apply_split(seed, 1, 1, verdict) == "split"
+    np.testing.assert_array_equal(np.asarray(seed["partition"].lo)[[1, 2]],
+                                  np.concatenate([reach_lo, miss_lo]))
+    assert seed["q"][2, 1] == pytest.approx(0.3)  # G_s's own value: towards the exit piece
+    assert seed["q"][2, 0] == pytest.approx(0.5) and seed["q"][1, 0] == pytest.approx(0.5)
+    assert bool(seed["reachable"][1, 1]) and seed["reachable"].sum() == 1
+    assert not seed["unreachable"].any()
+    normal = _seed(5)
+    assert _apply_split(normal, 1, 0, verdict) == "split"
+    assert normal["q"][2, 0] == 0.0 and bool(normal["unreachable"][2, 0])
+
+
 def test_handcrafted_has_no_host_step_and_six_goals():
     alg = make_algorithm(HandcraftedConfig(steps_per_epoch=10, eval_episodes=1))
     assert alg.host_update is None and alg.name == "handcrafted"
@@ -165,7 +185,8 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (GaraConfig, "hindsight_memory", 1), (GaraConfig, "q_columns", "rows"),
     (GaraConfig, "target_margin", 0.5), (GaraConfig, "target_margin", True),
     (GaraConfig, "split_dims", ()), (GaraConfig, "split_dims", (0, 0)),
-    (GaraConfig, "split_dims", (-1,))])
+    (GaraConfig, "split_dims", (-1,)), (GaraConfig, "exit_radius", 0.0),
+    (GaraConfig, "exit_radius", 0.75), (GaraConfig, "exit_analysis", 1)])
 def test_config_validation_names_the_field(cls, field, value):
     with pytest.raises(ValueError, match=field):
         cls(**{field: value})
@@ -178,3 +199,29 @@ def test_configs_are_json_serialisable():
     for cfg in (GaraConfig(), HandcraftedConfig(planning=True)):
         text = json.dumps(dataclasses.asdict(cfg))
         assert "min_steps" in text or "max_goals" in text
+
+
+def test_exit_analysis_analyses_the_goal_holding_the_exit():
+    """End to end, on a U-maze whose start lies near the exit (found in the first episodes):
+    with ``exit_analysis`` the pair (G_e, G_e) is analysed; without it, never (s == d is
+    masked out of the trigger), and the partitions still tile the maze."""
+    import dataclasses
+
+    from gara_jax import partition
+    from gara_jax.train import final_partitions, train_many
+
+    envs.register("u_maze_exit_near", lambda **o: envs.make(
+        "u_maze", **{"start": (2.5, 0.5), "max_steps": 60, **o}))
+    lo, hi = partition.layout_boxes("u_maze", "gara")
+    cfg = GaraConfig(env="u_maze_exit_near", initial_boxes=(lo, hi), steps_per_epoch=300,
+                     eval_episodes=1, min_steps=30, shared_min_records=1, exit_analysis=True,
+                     exit_radius=0.5)
+    counts = {}
+    for on in (True, False):
+        res = train_many(dataclasses.replace(cfg, exit_analysis=on), [0, 1], 1200)
+        info = [h for h in res.host_info if h]
+        counts[on] = (sum(h["exit_analysed"] for h in info), sum(h["analysed"] for h in info))
+        for p in final_partitions(res):
+            partition.check_tiling(p, np.array([0, 0, -1, -1.0]), np.array([3, 3, 1, 1.0]))
+    assert 0 < counts[True][0] <= counts[True][1]
+    assert counts[False][0] == 0

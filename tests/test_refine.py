@@ -112,6 +112,34 @@ def test_target_margin_measures_coverage_inside_the_target(margin):
         refine(net, start_lo, start_hi, t_lo, t_hi, target_margin=0.5)
 
 
+def test_cover_box_is_measured_while_the_goal_inputs_stay_the_target():
+    """``cover_lo/cover_hi``: coverage against another box, the forward model still fed the
+    target's bounds. The hand-set model moves x by the target's ``lo`` x (input 4), so the
+    result is the hand computation for a shift of 1 (the target's) against the cover box's
+    x-interval, not for a shift of 2 (the cover box's)."""
+    w1 = np.zeros((12, 2), np.float32)
+    w1[0], w1[4] = (1.0, -1.0), (1.0, -1.0)  # v = x + target.lo_x; relu(v), relu(-v)
+    w2 = np.zeros((2, 4), np.float32)
+    w2[0, 0], w2[1, 0] = 1.0, -1.0
+    net = [(w1, np.zeros(2, np.float32)), (w2, np.array([0, 0.5, 0.5, 0.5], np.float32))]
+    start_lo, start_hi = np.array([[0.0, 0, -1, -1]]), np.array([[4.0, 3, 1, 1]])
+    t_lo, t_hi = np.array([[1.0, 0, -1, -1]]), np.array([[4.0, 3, 1, 1]])
+    c_lo, c_hi = np.array([[2.0, 0, -1, -1]]), np.array([[3.5, 3, 1, 1]])
+    stacked = [(w[None], b[None]) for w, b in net]
+    (res,) = refine_many(stacked, start_lo, start_hi, t_lo, t_hi, cover_lo=c_lo, cover_hi=c_hi)
+    want_reach, want_miss = expected_1d(0.0, 4.0, 1.0, 2.0, 3.5)
+    assert x_intervals(res.reaching_lo, res.reaching_hi) == want_reach
+    assert x_intervals(res.nonreaching_lo, res.nonreaching_hi) == want_miss
+    (fed_cover,) = refine_many(stacked, start_lo, start_hi, c_lo, c_hi)
+    assert x_intervals(fed_cover.reaching_lo, fed_cover.reaching_hi) == expected_1d(
+        0.0, 4.0, 2.0, 2.0, 3.5)[0] != want_reach
+    with pytest.raises(ValueError, match="cover_lo/cover_hi"):
+        refine_many(stacked, start_lo, start_hi, t_lo, t_hi, cover_lo=c_lo)
+    with pytest.raises(ValueError, match="cover_lo/cover_hi"):
+        refine_many(stacked, start_lo, start_hi, t_lo, t_hi, cover_lo=c_lo[:, :3],
+                    cover_hi=c_hi[:, :3])
+
+
 def test_split_dims_limit_the_bisection():
     """The x-only model's reaching part lies along x: with x allowed the analysis finds it as
     without the option; with only y allowed every half looks like its parent, so the boxes

@@ -496,6 +496,23 @@ class GaraConfig(HandcraftedConfig):
             Metrics, evaluations and checkpoints stay per ``steps_per_epoch`` block; an
             epoch's ``n_goals`` is then the partition at the epoch's end, after its host
             steps (with ``"epoch"``, before the epoch's host step).
+        exit_analysis: this project's option, not the authors' (off in the presets and, until
+            it is measured better, in the default). The analysis only ever asks whether part
+            of ``G_s`` reaches *another* goal, so the goal ``G_e`` that holds the exit is
+            never split for the one hop the partition does not represent: from anywhere in
+            ``G_e`` to the exit itself (on ``big_u_maze`` the right-hand goal holds the second
+            wall, and the way to the exit runs under it). With this on, the pair ``(G_e,
+            G_e)`` (options that target the goal the agent is in, which is how the agent is
+            sent to the exit) passes through the same trigger, shared forward model and
+            analysis as any other pair, but its coverage is measured against the *exit box*:
+            ``G_e`` narrowed, along ``split_dims`` (every dimension if ``None``), to
+            ``exit_radius`` times its width on each side of the last state where the exit
+            reward was obtained. ``G_e`` is then split into the pieces from which the options
+            end near the exit and the others; the reaching piece keeps ``G_e``'s index, the
+            others keep their copied Q rows and edges towards it (not being able to reach the
+            exit in one option says nothing about reaching the piece that does), and the pair
+            is marked reachable for the piece that kept the index.
+        exit_radius: see ``exit_analysis``; in ``(0, 0.5]``.
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -540,6 +557,8 @@ class GaraConfig(HandcraftedConfig):
     relabel_counts: str = "none"
     relabel_after: str = "split"
     cadence: str = "epoch"
+    exit_analysis: bool = False
+    exit_radius: float = 0.25
 
     def __post_init__(self):
         super().__post_init__()
@@ -579,7 +598,11 @@ class GaraConfig(HandcraftedConfig):
                 if not 0.0 < self.initial_split_x < n:
                     raise ValueError(f"initial_split_x: must be None or lie strictly inside the "
                                      f"maze's x range (0, {n:g}), got {self.initial_split_x}")
-        _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay")
+        _bools(self, "hindsight_memory", "skip_unreachable", "relabel_replay", "exit_analysis")
+        if not (isinstance(self.exit_radius, int | float) and not isinstance(
+                self.exit_radius, bool) and 0.0 < self.exit_radius <= 0.5):
+            raise ValueError(f"exit_radius: must be a number in (0, 0.5], got "
+                             f"{self.exit_radius!r}")
         _one_of(self, "coverage", COVERAGE_RULES)
         _one_of(self, "merge", MERGE_RULES)
         if not (isinstance(self.target_margin, int | float) and not isinstance(

@@ -7,7 +7,9 @@ episode. Read top to bottom, for all seeds at once (the states are batched over 
 
 1. **Trigger** (SPEC.md section 3.5). A pair ``(G_s, G_d)``, ``s != d``, explored during the
    last epoch, not known reachable, not blocked (a split that did not fit), not marked
-   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience. With
+   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience; with
+   ``exit_analysis`` also ``(G_e, G_e)``, ``G_e`` the goal holding the last exit state, whose
+   analysis measures coverage against a box around that state (:func:`exit_box`). With
    ``pair_counts="memory"`` the experience is derived from the high-level memory (the summed
    ``length`` of the pair's rows, the goals located from the stored states and target
    bounds), so it stays right after splits without bookkeeping; with ``"cumulative"`` it is
@@ -57,7 +59,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
     ``locate``/``exit_goals`` are the agent's goal lookups, ``dqn`` its low-level learner and
     ``forward`` the :class:`~gara_jax.agents.forward_model.ForwardModel`. ``info`` counts what
     happened (``triggered``, ``stable``, ``analysed``, ``splits``, ``reaches``, ``no_reach``,
-    ``capacity_skips``, ``fit_updates``), holds ``changed [n_seeds]`` (partition grew),
+    ``capacity_skips``, ``fit_updates``; of them ``exit_analysed``, ``exit_splits`` for the
+    ``exit_analysis`` pairs), holds ``changed [n_seeds]`` (partition grew),
     ``updated [n_seeds]`` (a split, or a whole ``G_s`` found reaching) and the time spent
     (``fit_s``, ``refine_s``, ``host_s``).
     """
@@ -81,6 +84,12 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
                                 partition.count)
         steps, recent = fm.pair_experience(start, target, mem, since, G)
         return start, target, steps, recent
+
+    @SeedJit
+    @jax.vmap
+    def exit_pairs(state):
+        """``[G]``: the goal holding the last exit state (``exit_analysis``), if one is known."""
+        return exit_goals(state.high, state.partition)
 
     @SeedJit
     @jax.vmap
@@ -154,7 +163,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             host_key=states.host_key, records=states.forward.records,
             mse_last=states.forward.mse_last, mse_prev=states.forward.mse_prev))
         info = dict(epoch=epoch, triggered=0, stable=0, analysed=0, splits=0, reaches=0,
-                    no_reach=0, capacity_skips=0, fit_updates=0,
+                    no_reach=0, capacity_skips=0, fit_updates=0, exit_analysed=0, exit_splits=0,
                     changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
                     fit_s=0.0, refine_s=0.0)
 
@@ -162,7 +171,11 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         ok = recent & (steps >= config.min_steps) & ~host["reachable"] & ~host["blocked"]
         if config.skip_unreachable:
             ok &= ~host["unreachable"]
-        ok[:, np.arange(G), np.arange(G)] = False
+        exit_goal = np.zeros((n_seeds, G), bool)
+        if config.exit_analysis:
+            # The one pair s == d: options towards the goal holding the exit, from inside it.
+            exit_goal = np.asarray(jax.device_get(exit_pairs(states)), bool)
+        ok[:, np.arange(G), np.arange(G)] &= exit_goal
         if only is not None:
             ok &= np.asarray(only, bool).reshape(n_seeds)[:, None, None]
         live_goals = np.arange(G)[None, :] < host["count"][:, None]
@@ -197,10 +210,20 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         # 3. One batched reachability analysis for every job.
         t_ref = time.perf_counter()
         lo, hi = host["lo"], host["hi"]
+        cover_lo = np.stack([lo[i][d] for i, _, d in jobs])
+        cover_hi = np.stack([hi[i][d] for i, _, d in jobs])
+        exit_jobs = [j for j, (_, s, d) in enumerate(jobs) if s == d]
+        if exit_jobs:
+            exit_state = np.asarray(jax.device_get(states.high.exit_state))
+            for j in exit_jobs:
+                i, e, _ = jobs[j]
+                cover_lo[j], cover_hi[j] = exit_box(lo[i][e], hi[i][e], exit_state[i],
+                                                    config.exit_radius, config.split_dims)
         results = reach.refine_many(
             mlp_layers(job_params),
             np.stack([lo[i][s] for i, s, _ in jobs]), np.stack([hi[i][s] for i, s, _ in jobs]),
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
+            cover_lo=cover_lo, cover_hi=cover_hi,
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
             method=config.refine_method, small_box_c1=config.small_box_c1,
             coverage=config.coverage, target_margin=config.target_margin,
@@ -239,6 +262,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             info["reaches"] += outcome == "reaches"
             info["no_reach"] += outcome == "no_reach"
             info["capacity_skips"] += outcome == "capacity"
+            info["exit_analysed"] += s_idx == d_idx
+            info["exit_splits"] += s_idx == d_idx and outcome == "split"
             if outcome == "split":
                 info["changed"][i] = True
                 new["epsilon"][i] = min(1.0, new["epsilon"][i] * config.split_epsilon_boost)
@@ -290,6 +315,30 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
         return states, info
 
     return host_update
+
+
+def exit_box(goal_lo, goal_hi, exit_state, radius: float, dims=None):
+    """The box an exit analysis measures coverage against (GARA's ``exit_analysis``).
+
+    The goal ``goal_lo/goal_hi`` narrowed, along ``dims`` (``None``: every dimension), to
+    ``radius`` times its width on each side of ``exit_state``; the other dimensions keep the
+    goal's range.
+
+    Example:
+        >>> import numpy as np
+        >>> lo, hi = exit_box(np.array([3., 0, -1, -1]), np.array([6., 3, 1, 1]),
+        ...                   np.array([6., 3, 0.2, 0.5]), 0.25, dims=(0, 1))
+        >>> lo.tolist(), hi.tolist()
+        ([5.25, 2.25, -1.0, -1.0], [6.0, 3.0, 1.0, 1.0])
+    """
+    goal_lo, goal_hi = np.asarray(goal_lo, float), np.asarray(goal_hi, float)
+    exit_state = np.asarray(exit_state, float)
+    narrow = np.zeros(goal_lo.shape, bool)
+    narrow[list(range(len(goal_lo))) if dims is None else list(dims)] = True
+    half = radius * (goal_hi - goal_lo)
+    lo = np.where(narrow, np.clip(exit_state - half, goal_lo, goal_hi), goal_lo)
+    hi = np.where(narrow, np.clip(exit_state + half, goal_lo, goal_hi), goal_hi)
+    return lo, hi
 
 
 def put_like(value, like):
@@ -502,6 +551,11 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy",
     - Cumulative pair counts (``seed["pair_count"]``, if present): index ``s`` keeps them, the
       appended pieces' rows and columns start from 0.
 
+    ``s == d`` is an exit analysis (GARA's ``exit_analysis``): the verdicts are about the exit
+    box, so after the split only ``(s, s)`` is marked reachable (``s`` is the first reaching
+    piece), and the other pieces keep their copied Q rows, planner edges and marks towards
+    ``s``, with no zeroing.
+
     An analysis whose boxes merge back into ``G_s`` changes no box: if all of ``G_s`` reaches,
     the pair is marked reachable; if none of it does, nothing is marked (as in the reference,
     which only marks the non-reaching pieces of a split), so the pair is analysed again later
@@ -558,6 +612,11 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy",
         alias = seed["alias"]
         alias[pieces] = alias[s]
         group = np.flatnonzero(alias == alias[s])
+    if s == d:
+        # An exit analysis (GARA's exit_analysis): the verdicts are about the exit box, not
+        # about piece s, so the others keep their copied Q rows and edges towards it.
+        seed["reachable"][s, s] = True
+        return "split"
     for n, p in enumerate(pieces):
         hits = n < n_reach
         seed["reachable"][p, d], seed["unreachable"][p, d] = hits, not hits

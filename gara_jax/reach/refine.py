@@ -83,9 +83,10 @@ def _gradient_smear(layers, pre, lo, hi, dim):
     return grad * (hi - lo)[:, :dim]
 
 
-def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final"):
-    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job; the coverage is
-    measured against ``G_d`` shrunk by ``margin`` times its width on every side."""
+def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, margin, method, coverage="final"):
+    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job: the network's goal
+    inputs are ``t_lo/t_hi``, the coverage is measured against ``c_lo/c_hi`` (``G_d``, or the
+    job's own coverage box) shrunk by ``margin`` times its width on every side."""
     n = s_lo.shape[0]
     dim = s_lo.shape[1]
     goal_lo = jnp.broadcast_to(t_lo, (n, dim))
@@ -103,15 +104,15 @@ def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final
                for (l1, u1), (l2, u2) in zip(pre, crown_preactivations(layers, lo, hi),
                                              strict=True)]
     r_lo, r_hi = pre[-1]
-    inset = margin * (t_hi - t_lo)
-    c1, c2 = boxes.coverage(r_lo, r_hi, t_lo + inset, t_hi - inset, rule=coverage)
+    inset = margin * (c_hi - c_lo)
+    c1, c2 = boxes.coverage(r_lo, r_hi, c_lo + inset, c_hi - inset, rule=coverage)
     smear = _gradient_smear(layers, pre, lo, hi, dim)
     return c1, c2, smear
 
 
-def _analyse(layers, s_lo, s_hi, t_lo, t_hi, margin, method, coverage="final"):
+def _analyse(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, margin, method, coverage="final"):
     return jax.vmap(lambda *a: _analyse_job(*a, margin, method, coverage))(
-        layers, s_lo, s_hi, t_lo, t_hi)
+        layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi)
 
 
 _analyse_jit = TunedJit(_analyse, static_argnames=("method", "coverage"))
@@ -175,7 +176,7 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 method: str = "crown", small_box_c1: float | None = None,
                 coverage: str = "final", target_margin: float = 0.0,
                 split_dims: Sequence[int] | None = None,
-                merge: str = "full") -> list[RefineResult]:
+                merge: str = "full", cover_lo=None, cover_hi=None) -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -206,6 +207,11 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
             face; ``"siblings"``: only the first step, so two same-verdict boxes from
             different branches of the bisection stay apart (as in the partitions of the
             authors' result files, SPEC.md 3.9.1).
+        cover_lo, cover_hi: ``[J, D]``, the boxes the coverage is measured against, where they
+            differ from the targets (``None``: the targets). The forward models' goal inputs
+            stay ``target_lo/target_hi``: this asks where the options *towards* ``G_d`` end,
+            measured against another box (GARA's ``exit_analysis``: options towards the goal
+            holding the exit, measured against a box around the exit).
 
     Returns:
         One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
@@ -242,6 +248,14 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
     if s_lo.ndim != 2 or t_lo.shape != s_lo.shape:
         raise ValueError(
             f"start_lo/target_lo: expected matching shapes [J, D], got {s_lo.shape}, {t_lo.shape}")
+    if (cover_lo is None) != (cover_hi is None):
+        raise ValueError("cover_lo/cover_hi: give both or neither")
+    if cover_lo is None:
+        c_lo, c_hi = t_lo, t_hi
+    else:
+        c_lo, c_hi = boxes.validate_boxes(cover_lo, cover_hi, "cover_lo/cover_hi")
+        if c_lo.shape != t_lo.shape:
+            raise ValueError(f"cover_lo/cover_hi: expected shape {t_lo.shape}, got {c_lo.shape}")
     n_jobs, dim = s_lo.shape
     if n_jobs == 0:
         return []
@@ -269,6 +283,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
     net_dtype = layers[0][0].dtype
     t_lo_pad = jnp.asarray(t_lo[pad], net_dtype)
     t_hi_pad = jnp.asarray(t_hi[pad], net_dtype)
+    c_lo_pad = jnp.asarray(c_lo[pad], net_dtype)
+    c_hi_pad = jnp.asarray(c_hi[pad], net_dtype)
 
     trees = [[dict(lo=s_lo[j], hi=s_hi[j], depth=0, children=None, verdict=False)]
              for j in range(n_jobs)]
@@ -284,7 +300,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 b_lo[j, i], b_hi[j, i] = trees[j][n]["lo"], trees[j][n]["hi"]
         c1, c2, smear = jax.device_get(_analyse_jit(
             layers_pad, jnp.asarray(b_lo, net_dtype), jnp.asarray(b_hi, net_dtype),
-            t_lo_pad, t_hi_pad, jnp.asarray(target_margin, net_dtype), method=method,
+            t_lo_pad, t_hi_pad, c_lo_pad, c_hi_pad, jnp.asarray(target_margin, net_dtype),
+            method=method,
             coverage=coverage))
         new_frontier = [[] for _ in range(n_jobs)]
         for j, nodes in enumerate(frontier):

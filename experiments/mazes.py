@@ -95,6 +95,9 @@ VARIANTS = {
     "gara+exit_analysis": ("also analyse the goal holding the exit against a box around the "
                            "exit (exit_analysis=True: the one hop the partition does not "
                            "represent)", {"exit_analysis": True}),
+    "gara+data_velocities": ("bound the forward model over the velocities the pair's own data "
+                             "starts from, not G_s's whole velocity range "
+                             "(input_range='data')", {"input_range": "data"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

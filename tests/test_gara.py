@@ -186,7 +186,8 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (GaraConfig, "target_margin", 0.5), (GaraConfig, "target_margin", True),
     (GaraConfig, "split_dims", ()), (GaraConfig, "split_dims", (0, 0)),
     (GaraConfig, "split_dims", (-1,)), (GaraConfig, "exit_radius", 0.0),
-    (GaraConfig, "exit_radius", 0.75), (GaraConfig, "exit_analysis", 1)])
+    (GaraConfig, "exit_radius", 0.75), (GaraConfig, "exit_analysis", 1),
+    (GaraConfig, "input_range", "box")])
 def test_config_validation_names_the_field(cls, field, value):
     with pytest.raises(ValueError, match=field):
         cls(**{field: value})
@@ -225,3 +226,56 @@ def test_exit_analysis_analyses_the_goal_holding_the_exit():
             partition.check_tiling(p, np.array([0, 0, -1, -1.0]), np.array([3, 3, 1, 1.0]))
     assert 0 < counts[True][0] <= counts[True][1]
     assert counts[False][0] == 0
+
+
+def test_data_input_boxes_narrow_the_velocities_to_the_pair_data():
+    """``input_range="data"``: G_s narrowed along the dimensions not in ``split_dims`` to its
+    pair's data range (clipped into G_s), G_s itself for a pair without data."""
+    from types import SimpleNamespace
+
+    from gara_jax.algorithms.refinement import _data_input_boxes
+
+    lo = np.array([[[0.0, 0, -1, -1], [1, 0, -1, -1]]])
+    hi = np.array([[[1.0, 3, 1, 1], [3, 3, 1, 1]]])
+    r_lo = np.full((1, 2, 2, 4), np.inf)
+    r_hi = -r_lo
+    r_lo[0, 0, 1], r_hi[0, 0, 1] = [0.2, 1.0, -0.5, -1.5], [0.8, 2.0, 0.25, 0.5]
+    jobs = [(0, 0, 1), (0, 1, 0)]
+    cfg = SimpleNamespace(split_dims=(0, 1))
+    in_lo, in_hi = _data_input_boxes(cfg, (r_lo, r_hi), jobs, lo, hi)
+    assert in_lo.tolist() == [[0.0, 0, -0.5, -1], [1, 0, -1, -1]]
+    assert in_hi.tolist() == [[1.0, 3, 0.25, 0.5], [3, 3, 1, 1]]
+    every = _data_input_boxes(SimpleNamespace(split_dims=None), (r_lo, r_hi), jobs, lo, hi)
+    assert every[0].tolist() == lo[0].tolist() and every[1].tolist() == hi[0].tolist()
+    only_x = _data_input_boxes(SimpleNamespace(split_dims=(0,)), (r_lo, r_hi), jobs, lo, hi)
+    assert only_x[0][0].tolist() == [0.0, 1.0, -0.5, -1] and only_x[1][0, 1] == 2.0
+
+
+def test_input_range_data_bounds_over_the_pairs_data(monkeypatch):
+    """End to end: with ``input_range="data"`` every analysis gets an input box inside its G_s,
+    equal to it in x, y, and some narrower in a velocity."""
+    from gara_jax import partition, reach
+    from gara_jax.train import final_partitions, train_many
+
+    seen = []
+    real = reach.refine_many
+
+    def spy(*args, **kw):
+        seen.append((np.asarray(args[1]), np.asarray(args[2]), kw.get("input_lo"),
+                     kw.get("input_hi")))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(reach, "refine_many", spy)
+    lo, hi = partition.layout_boxes("u_maze", "gara")
+    cfg = GaraConfig(initial_boxes=(lo, hi), steps_per_epoch=300, eval_episodes=1,
+                     min_steps=30, shared_min_records=1, input_range="data")
+    res = train_many(cfg, [0, 1], 1200)
+    assert sum(h["analysed"] for h in res.host_info if h) > 0
+    for p in final_partitions(res):
+        partition.check_tiling(p, np.array([0, 0, -1, -1.0]), np.array([3, 3, 1, 1.0]))
+    narrower = False
+    for s_lo, s_hi, i_lo, i_hi in seen:
+        assert (s_lo <= i_lo).all() and (i_lo <= i_hi).all() and (i_hi <= s_hi).all()
+        assert (i_lo[:, :2] == s_lo[:, :2]).all() and (i_hi[:, :2] == s_hi[:, :2]).all()
+        narrower |= bool(((i_hi - i_lo)[:, 2:] < (s_hi - s_lo)[:, 2:]).any())
+    assert seen and narrower

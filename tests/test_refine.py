@@ -140,6 +140,33 @@ def test_cover_box_is_measured_while_the_goal_inputs_stay_the_target():
                     cover_hi=c_hi[:, :3])
 
 
+def test_input_box_narrows_the_states_bounded_over():
+    """``input_lo/input_hi``: the identity-plus-shift model keeps vx, so over G_s's vx range
+    [-1, 1] no box lies within the target's [-0.25, 0.25] (c1 <= 0.25 < tau1) and nothing
+    reaches; with the input box's vx in [-0.2, 0.2] the verdict is the x hand computation.
+    The pieces still tile G_s, vx range included."""
+    start_lo, start_hi = np.array([[0.0, 0, -1, -1]]), np.array([[4.0, 3, 1, 1]])
+    t_lo, t_hi = np.array([[2.0, 0, -0.25, -1]]), np.array([[3.5, 3, 0.25, 1]])
+    stacked = [(w[None], b[None]) for w, b in translation_net([1.0, 0, 0, 0])]
+    kw = dict(split_dims=(0,))
+    (wide,) = refine_many(stacked, start_lo, start_hi, t_lo, t_hi, **kw)
+    assert len(wide.reaching_lo) == 0
+    i_lo, i_hi = np.array([[-5.0, 0, -0.2, -1]]), np.array([[5.0, 3, 0.2, 1]])
+    (data,) = refine_many(stacked, start_lo, start_hi, t_lo, t_hi, input_lo=i_lo,
+                          input_hi=i_hi, **kw)
+    want_reach, want_miss = expected_1d(0.0, 4.0, 1.0, 2.0, 3.5)
+    assert x_intervals(data.reaching_lo, data.reaching_hi) == want_reach
+    assert x_intervals(data.nonreaching_lo, data.nonreaching_hi) == want_miss
+    boxes.check_tiles(np.concatenate([data.reaching_lo, data.nonreaching_lo]),
+                      np.concatenate([data.reaching_hi, data.nonreaching_hi]), start_lo[0],
+                      start_hi[0])
+    with pytest.raises(ValueError, match="input_lo/input_hi"):
+        refine_many(stacked, start_lo, start_hi, t_lo, t_hi, input_lo=i_lo)
+    with pytest.raises(ValueError, match="input_lo/input_hi"):
+        refine_many(stacked, start_lo, start_hi, t_lo, t_hi, input_lo=i_lo[:, :3],
+                    input_hi=i_hi[:, :3])
+
+
 def test_split_dims_limit_the_bisection():
     """The x-only model's reaching part lies along x: with x allowed the analysis finds it as
     without the option; with only y allowed every half looks like its parent, so the boxes

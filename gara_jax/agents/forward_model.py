@@ -237,6 +237,37 @@ def pair_experience(start_goal, target_goal, memory: HighMemory, since_step, max
     return steps.reshape(max_goals, max_goals), recent.reshape(max_goals, max_goals)
 
 
+def pair_start_ranges(start_goal, target_goal, memory: HighMemory, max_goals: int):
+    """Per goal pair: the range of the start states of its forward-model data rows (the
+    model's training inputs), ``+inf/-inf`` for a pair with none (GARA's ``input_range``).
+
+    Args:
+        start_goal, target_goal: ``[C + 1]`` goal indices of each row, as for
+            :func:`pair_experience`.
+
+    Returns:
+        ``(lo [G, G, D], hi [G, G, D])``.
+
+    Example:
+        >>> import jax.numpy as jnp
+        >>> m = init_memory(4, 1)
+        >>> for x in (0.5, -0.25):
+        ...     m = push_memory(m, jnp.full(1, x), jnp.zeros(1), jnp.zeros(1), jnp.ones(1),
+        ...                     0.0, 5, 0)
+        >>> lo, hi = pair_start_ranges(jnp.zeros(5, int), jnp.ones(5, int), m, 2)
+        >>> lo[0, 1, 0].item(), hi[0, 1, 0].item(), bool(jnp.isinf(lo[1, 0, 0]))
+        (-0.25, 0.5, True)
+    """
+    rows = (jnp.arange(memory.capacity + 1) < memory.size) & memory.data
+    ok = rows & (start_goal >= 0) & (target_goal >= 0)
+    flat = jnp.where(ok, start_goal * max_goals + target_goal, 0)
+    dim = memory.start.shape[-1]
+    pick = lambda fill: jnp.where(ok[:, None], memory.start, fill)  # noqa: E731
+    lo = jnp.full((max_goals * max_goals, dim), jnp.inf).at[flat].min(pick(jnp.inf))
+    hi = jnp.full((max_goals * max_goals, dim), -jnp.inf).at[flat].max(pick(-jnp.inf))
+    return lo.reshape(max_goals, max_goals, dim), hi.reshape(max_goals, max_goals, dim)
+
+
 # ----------------------------------------------------------------------------------------------
 # Forward model
 # ----------------------------------------------------------------------------------------------

@@ -71,6 +71,7 @@ RELABEL_AFTER = ("split", "update")
 #: When GARA's host step (trigger, forward model, analysis) runs: after every
 #: ``steps_per_epoch`` steps, or after every episode of every seed (SPEC.md section 3.9.3).
 CADENCES = ("epoch", "episode")
+INPUT_RANGES = ("goal", "data")
 #: The reference's episodes run at most 302 steps, not the environment's 300 (its loop's check;
 #: SPEC.md sections 3.1 and 3.9.3, both versions): the presets' ``max_episode_steps``.
 REFERENCE_EPISODE_STEPS = 302
@@ -513,6 +514,15 @@ class GaraConfig(HandcraftedConfig):
             exit in one option says nothing about reaching the piece that does), and the pair
             is marked reachable for the piece that kept the index.
         exit_radius: see ``exit_analysis``; in ``(0, 0.5]``.
+        input_range: this project's option, not the authors' (``"goal"``, their rule, in the
+            presets and the default): the states the forward model is bounded over. ``"goal"``:
+            all of ``G_s`` (each piece). ``"data"``: along the dimensions not in
+            ``split_dims``, only the range the pair's own memory rows start from (the
+            forward model's training inputs; ``G_s`` where the pair has none). With
+            ``split_dims=(0, 1)`` a piece spans ``G_s``'s whole velocity range, most of which
+            the low level never starts an option at and the model never saw, and the bounds
+            over it are wide; with ``"data"`` a verdict holds for the velocities the data has,
+            not for every velocity in ``G_s``. No effect with ``split_dims=None``.
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -559,6 +569,7 @@ class GaraConfig(HandcraftedConfig):
     cadence: str = "epoch"
     exit_analysis: bool = False
     exit_radius: float = 0.25
+    input_range: str = "goal"
 
     def __post_init__(self):
         super().__post_init__()
@@ -623,6 +634,7 @@ class GaraConfig(HandcraftedConfig):
         _one_of(self, "relabel_counts", RELABEL_COUNTS)
         _one_of(self, "relabel_after", RELABEL_AFTER)
         _one_of(self, "cadence", CADENCES)
+        _one_of(self, "input_range", INPUT_RANGES)
         if self.pair_counts == "cumulative" and self.memory != "windows":
             raise ValueError("pair_counts: 'cumulative' counts the reference's sliding windows "
                              f"and needs memory='windows', got memory={self.memory!r}")

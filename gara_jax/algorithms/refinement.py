@@ -87,6 +87,11 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
 
     @SeedJit
     @jax.vmap
+    def pair_ranges(memory, start, target):
+        return fm.pair_start_ranges(start, target, memory, G)
+
+    @SeedJit
+    @jax.vmap
     def exit_pairs(state):
         """``[G]``: the goal holding the last exit state (``exit_analysis``), if one is known."""
         return exit_goals(state.high, state.partition)
@@ -219,11 +224,16 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
                 i, e, _ = jobs[j]
                 cover_lo[j], cover_hi[j] = exit_box(lo[i][e], hi[i][e], exit_state[i],
                                                     config.exit_radius, config.split_dims)
+        input_lo = input_hi = None
+        if config.input_range == "data":
+            input_lo, input_hi = _data_input_boxes(
+                config, jax.device_get(pair_ranges(states.memory, start_goal, target_goal)),
+                jobs, lo, hi)
         results = reach.refine_many(
             mlp_layers(job_params),
             np.stack([lo[i][s] for i, s, _ in jobs]), np.stack([hi[i][s] for i, s, _ in jobs]),
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
-            cover_lo=cover_lo, cover_hi=cover_hi,
+            cover_lo=cover_lo, cover_hi=cover_hi, input_lo=input_lo, input_hi=input_hi,
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
             method=config.refine_method, small_box_c1=config.small_box_c1,
             coverage=config.coverage, target_margin=config.target_margin,
@@ -339,6 +349,26 @@ def exit_box(goal_lo, goal_hi, exit_state, radius: float, dims=None):
     lo = np.where(narrow, np.clip(exit_state - half, goal_lo, goal_hi), goal_lo)
     hi = np.where(narrow, np.clip(exit_state + half, goal_lo, goal_hi), goal_hi)
     return lo, hi
+
+
+def _data_input_boxes(config, ranges, jobs, lo, hi):
+    """``input_range="data"``: each job's input box, ``G_s`` narrowed along the dimensions not
+    in ``split_dims`` to the range of its pair's data rows (``G_s`` itself where the pair has
+    no data row, e.g. only count rows)."""
+    r_lo, r_hi = ranges
+    dim = lo.shape[-1]
+    narrow = np.zeros(dim, bool)  # split_dims=None: every dimension is split, none narrowed
+    if config.split_dims is not None:
+        narrow[:] = True
+        narrow[list(config.split_dims)] = False
+    in_lo = np.stack([lo[i][s] for i, s, _ in jobs]).astype(float)
+    in_hi = np.stack([hi[i][s] for i, s, _ in jobs]).astype(float)
+    for j, (i, s, d) in enumerate(jobs):
+        d_lo, d_hi = r_lo[i, s, d], r_hi[i, s, d]
+        if np.all(d_lo <= d_hi):
+            in_lo[j] = np.where(narrow, np.clip(d_lo, in_lo[j], in_hi[j]), in_lo[j])
+            in_hi[j] = np.where(narrow, np.clip(d_hi, in_lo[j], in_hi[j]), in_hi[j])
+    return in_lo, in_hi
 
 
 def put_like(value, like):

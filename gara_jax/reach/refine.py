@@ -83,10 +83,13 @@ def _gradient_smear(layers, pre, lo, hi, dim):
     return grad * (hi - lo)[:, :dim]
 
 
-def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, margin, method, coverage="final"):
-    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job: the network's goal
-    inputs are ``t_lo/t_hi``, the coverage is measured against ``c_lo/c_hi`` (``G_d``, or the
-    job's own coverage box) shrunk by ``margin`` times its width on every side."""
+def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, margin, method,
+                 coverage="final"):
+    """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job: the boxes are
+    clipped into ``i_lo/i_hi`` (the job's input box), the network's goal inputs are
+    ``t_lo/t_hi``, the coverage is measured against ``c_lo/c_hi`` (``G_d``, or the job's own
+    coverage box) shrunk by ``margin`` times its width on every side."""
+    s_lo, s_hi = jnp.clip(s_lo, i_lo, i_hi), jnp.clip(s_hi, i_lo, i_hi)
     n = s_lo.shape[0]
     dim = s_lo.shape[1]
     goal_lo = jnp.broadcast_to(t_lo, (n, dim))
@@ -110,9 +113,10 @@ def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, margin, method, cov
     return c1, c2, smear
 
 
-def _analyse(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, margin, method, coverage="final"):
+def _analyse(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, margin, method,
+             coverage="final"):
     return jax.vmap(lambda *a: _analyse_job(*a, margin, method, coverage))(
-        layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi)
+        layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi)
 
 
 _analyse_jit = TunedJit(_analyse, static_argnames=("method", "coverage"))
@@ -176,7 +180,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 method: str = "crown", small_box_c1: float | None = None,
                 coverage: str = "final", target_margin: float = 0.0,
                 split_dims: Sequence[int] | None = None,
-                merge: str = "full", cover_lo=None, cover_hi=None) -> list[RefineResult]:
+                merge: str = "full", cover_lo=None, cover_hi=None, input_lo=None,
+                input_hi=None) -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -212,6 +217,11 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
             stay ``target_lo/target_hi``: this asks where the options *towards* ``G_d`` end,
             measured against another box (GARA's ``exit_analysis``: options towards the goal
             holding the exit, measured against a box around the exit).
+        input_lo, input_hi: ``[J, D]``, boxes the analysed boxes are clipped into before the
+            forward model is bounded over them (``None``: no clipping). The pieces still tile
+            ``G_s``; only the set of states the bounds hold for is narrowed (GARA's
+            ``input_range="data"``: the velocities the pair's own data has). A box outside the
+            input box along a dimension is analysed at the input box's nearest face there.
 
     Returns:
         One :class:`RefineResult` per job. Boxes are in ``start_lo``'s floating dtype (float64
@@ -256,6 +266,14 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         c_lo, c_hi = boxes.validate_boxes(cover_lo, cover_hi, "cover_lo/cover_hi")
         if c_lo.shape != t_lo.shape:
             raise ValueError(f"cover_lo/cover_hi: expected shape {t_lo.shape}, got {c_lo.shape}")
+    if (input_lo is None) != (input_hi is None):
+        raise ValueError("input_lo/input_hi: give both or neither")
+    if input_lo is None:
+        i_lo, i_hi = np.full(s_lo.shape, -np.inf), np.full(s_lo.shape, np.inf)
+    else:
+        i_lo, i_hi = boxes.validate_boxes(input_lo, input_hi, "input_lo/input_hi")
+        if i_lo.shape != s_lo.shape:
+            raise ValueError(f"input_lo/input_hi: expected shape {s_lo.shape}, got {i_lo.shape}")
     n_jobs, dim = s_lo.shape
     if n_jobs == 0:
         return []
@@ -285,6 +303,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
     t_hi_pad = jnp.asarray(t_hi[pad], net_dtype)
     c_lo_pad = jnp.asarray(c_lo[pad], net_dtype)
     c_hi_pad = jnp.asarray(c_hi[pad], net_dtype)
+    i_lo_pad = jnp.asarray(i_lo[pad], net_dtype)
+    i_hi_pad = jnp.asarray(i_hi[pad], net_dtype)
 
     trees = [[dict(lo=s_lo[j], hi=s_hi[j], depth=0, children=None, verdict=False)]
              for j in range(n_jobs)]
@@ -300,7 +320,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 b_lo[j, i], b_hi[j, i] = trees[j][n]["lo"], trees[j][n]["hi"]
         c1, c2, smear = jax.device_get(_analyse_jit(
             layers_pad, jnp.asarray(b_lo, net_dtype), jnp.asarray(b_hi, net_dtype),
-            t_lo_pad, t_hi_pad, c_lo_pad, c_hi_pad, jnp.asarray(target_margin, net_dtype),
+            t_lo_pad, t_hi_pad, c_lo_pad, c_hi_pad, i_lo_pad, i_hi_pad,
+            jnp.asarray(target_margin, net_dtype),
             method=method,
             coverage=coverage))
         new_frontier = [[] for _ in range(n_jobs)]

@@ -233,6 +233,12 @@ def plot(runs: dict, out: Path) -> None:
     from gara_jax import plots
 
     mazes = list(runs)
+    # One colour per method across every maze, and a legend of them all: a maze may lack a
+    # method (the U-maze's HIRO lives in the U-maze study).
+    methods = sorted({k for m in mazes for k in runs[m]},
+                     key=lambda k: (ALL_METHODS + (k,)).index(k))
+    colour = {k: f"C{i % 10}" for i, k in enumerate(methods)}
+    legend = {}
     fig, axes = plt.subplots(len(mazes), 2, figsize=(10, 3.0 * len(mazes)), dpi=110,
                              squeeze=False)
     for row, maze in zip(axes, mazes, strict=True):
@@ -242,7 +248,8 @@ def plot(runs: dict, out: Path) -> None:
                                             (c["env_steps"], c["greedy"], c["greedy_ci95"])),
                                       strict=True):
                 y, ci = np.asarray(y, float), np.asarray(ci, float)
-                line, = ax.plot(x, y, label=method, linewidth=1.4)
+                line, = ax.plot(x, y, label=method, linewidth=1.4, color=colour[method])
+                legend.setdefault(method, line)
                 ax.fill_between(x, np.clip(y - ci, 0, 1), np.clip(y + ci, 0, 1),
                                 color=line.get_color(), alpha=0.15, linewidth=0)
         row[0].set(title=f"{maze}: training success ({TRAIN_WINDOW:,}-step window)",
@@ -252,8 +259,8 @@ def plot(runs: dict, out: Path) -> None:
         for ax in row:
             ax.grid(alpha=0.3)
             ax.title.set_fontsize(9)
-    handles, labels = axes[0][1].get_legend_handles_labels()
-    fig.legend(handles, labels, loc="lower center", ncol=len(labels), fontsize=8, frameon=False)
+    fig.legend([legend[k] for k in methods], methods, loc="lower center", ncol=len(methods),
+               fontsize=8, frameon=False)
     fig.tight_layout(rect=(0, 0.03, 1, 1))
     fig.savefig(out / "mazes_success.png")
     plt.close(fig)

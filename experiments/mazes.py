@@ -98,6 +98,10 @@ VARIANTS = {
     "gara+data_velocities": ("bound the forward model over the velocities the pair's own data "
                              "starts from, not G_s's whole velocity range "
                              "(input_range='data')", {"input_range": "data"}),
+    "gara+exit_analysis+data_velocities": (
+        "the exit analysis with its bounds over the velocities its data starts from (the "
+        "exit analysis alone found no piece: its bounds over G_e's whole velocity range were "
+        "wider than the exit box)", {"exit_analysis": True, "input_range": "data"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

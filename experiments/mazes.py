@@ -102,6 +102,10 @@ VARIANTS = {
         "the exit analysis with its bounds over the velocities its data starts from (the "
         "exit analysis alone found no piece: its bounds over G_e's whole velocity range were "
         "wider than the exit box)", {"exit_analysis": True, "input_range": "data"}),
+    "gara+exit_analysis+wide_exit": (
+        "the exit analysis against a box of half G_e's width on each side of the exit "
+        "(exit_radius=0.5, the largest allowed, as large as the smallest piece)",
+        {"exit_analysis": True, "exit_radius": 0.5}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

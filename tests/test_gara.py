@@ -217,15 +217,38 @@ def test_exit_analysis_analyses_the_goal_holding_the_exit():
     cfg = GaraConfig(env="u_maze_exit_near", initial_boxes=(lo, hi), steps_per_epoch=300,
                      eval_episodes=1, min_steps=30, shared_min_records=1, exit_analysis=True,
                      exit_radius=0.5)
-    counts = {}
+    counts, runs = {}, {}
     for on in (True, False):
-        res = train_many(dataclasses.replace(cfg, exit_analysis=on), [0, 1], 1200)
+        runs[on] = res = train_many(dataclasses.replace(cfg, exit_analysis=on), [0, 1], 1200)
         info = [h for h in res.host_info if h]
         counts[on] = (sum(h["exit_analysed"] for h in info), sum(h["analysed"] for h in info))
         for p in final_partitions(res):
             partition.check_tiling(p, np.array([0, 0, -1, -1.0]), np.array([3, 3, 1, 1.0]))
     assert 0 < counts[True][0] <= counts[True][1]
     assert counts[False][0] == 0
+
+    # experiments.exit_bounds on the same run: pieces and exit boxes inside G_e, the memory's
+    # rows found, and the bounds sound for every prediction at a row start inside them.
+    from experiments import exit_bounds
+
+    per_seed = exit_bounds.measure(runs[True], fractions=(4, 16))
+    assert len(per_seed) == 2 and all(per_seed)
+    checked = 0
+    for seed in per_seed:
+        g_lo, g_hi = np.array(seed["goal_lo"]), np.array(seed["goal_hi"])
+        assert len(seed["cases"]) == 2 * len(exit_bounds.RADII)
+        for case in seed["cases"]:
+            for name in ("piece", "exit"):
+                lo, hi = np.array(case[f"{name}_lo"]), np.array(case[f"{name}_hi"])
+                assert (g_lo <= lo).all() and (lo <= hi).all() and (hi <= g_hi + 1e-6).all()
+            for inputs in ("goal_velocities", "data_velocities"):
+                if inputs in case and "sound" in case[inputs]:
+                    assert case[inputs]["sound"] and 0.0 <= case[inputs]["c1"] <= 1.0
+                    checked += 1
+            if case["rows"]:
+                assert 0.0 <= case["data_in_exit"] <= 1.0 and "sound" in case["data_velocities"]
+    assert checked > 0  # some piece held rows, so the soundness check ran
+    assert "seeds that found the exit: 2 of 2" in exit_bounds.table(per_seed, 0.9)
 
 
 def test_data_input_boxes_narrow_the_velocities_to_the_pair_data():

@@ -106,6 +106,12 @@ VARIANTS = {
         "the exit analysis against a box of half G_e's width on each side of the exit "
         "(exit_radius=0.5, the largest allowed, as large as the smallest piece)",
         {"exit_analysis": True, "exit_radius": 0.5}),
+    "gara+exit_analysis+data_velocities+per_job_model": (
+        "the exit analysis over the data's velocities, each analysis with a fresh forward "
+        "model fitted until its loss is stable (forward_model='per_job'): the shared model "
+        "puts fewer of its predictions in the exit box than the data has there "
+        "(experiments.exit_bounds)",
+        {"exit_analysis": True, "input_range": "data", "forward_model": "per_job"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -8,8 +8,9 @@ high levels), ``gara_reference`` (``GaraConfig.reference()``, the authors' versi
 SPEC.md 3.9) and ``gara_reference_results_planning`` (the same with the Planning high level,
 each seed started from the same seed's final ``gara_reference_results`` partition, as the
 authors ran it, SPEC.md 3.9.3; naming it alone runs ``gara_reference_results`` first). All
-seeds of a method are vmapped in one process. Diagnostic methods, the paper's HIRO with one of its mechanisms changed, can be named
-explicitly: ``hiro_paper_standard_target`` (its reward-less critic target fixed),
+seeds of a method are vmapped in one process. Diagnostic methods, the paper's HIRO with one
+of its mechanisms changed, can be named explicitly: ``hiro_paper_standard_target`` (its
+reward-less critic target fixed),
 ``hiro_paper_full_range`` (its actor output scaled to the whole goal box),
 ``hiro_paper_unclipped_low`` (its low level's TD targets not clipped to [-1, 1], as published
 HIRO's) and ``hiro_paper_full_range_unclipped_low`` (the last two together). Writes to

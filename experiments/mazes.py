@@ -112,6 +112,14 @@ VARIANTS = {
         "puts fewer of its predictions in the exit box than the data has there "
         "(experiments.exit_bounds)",
         {"exit_analysis": True, "input_range": "data", "forward_model": "per_job"}),
+    "gara+position_model": (
+        "a forward model that sees where an option starts, not how fast (model_inputs="
+        "'split_dims': the velocities are 0 in its inputs and its bounds), so its bounds do "
+        "not widen with a piece's velocity range", {"model_inputs": "split_dims"}),
+    "gara+exit_analysis+position_model": (
+        "the exit analysis with the position-only forward model (its bounds over G_e's "
+        "velocities were wider than the maze: experiments.exit_bounds)",
+        {"exit_analysis": True, "model_inputs": "split_dims"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -72,6 +72,8 @@ RELABEL_AFTER = ("split", "update")
 #: ``steps_per_epoch`` steps, or after every episode of every seed (SPEC.md section 3.9.3).
 CADENCES = ("epoch", "episode")
 INPUT_RANGES = ("goal", "data")
+#: What of the start state GARA's forward model sees (``GaraConfig.model_inputs``).
+MODEL_INPUTS = ("state", "split_dims")
 #: The reference's episodes run at most 302 steps, not the environment's 300 (its loop's check;
 #: SPEC.md sections 3.1 and 3.9.3, both versions): the presets' ``max_episode_steps``.
 REFERENCE_EPISODE_STEPS = 302
@@ -523,6 +525,16 @@ class GaraConfig(HandcraftedConfig):
             the low level never starts an option at and the model never saw, and the bounds
             over it are wide; with ``"data"`` a verdict holds for the velocities the data has,
             not for every velocity in ``G_s``. No effect with ``split_dims=None``.
+        model_inputs: this project's option, not the authors' (``"state"``, their model, in
+            the presets and the default): what of the start state the forward model sees.
+            ``"state"``: all of it, ``s || G.lo || G.hi``. ``"split_dims"``: only the
+            dimensions in ``split_dims`` (the mazes' positions with the default), the others
+            set to 0 in its training inputs and in the analysis, so the model predicts where
+            an option ends from where it starts, averaged over the velocities the data
+            starts at, and its bounds over a piece do not widen with the piece's velocity
+            range (``experiments.exit_bounds``: over ``G_e``'s velocities the bounds are
+            wider than the maze). A verdict then holds for the model of the mean outcome,
+            not for every start velocity. Needs ``split_dims`` and ``input_range="goal"``.
 
     Example:
         >>> cfg = GaraConfig(planning=True)
@@ -570,6 +582,7 @@ class GaraConfig(HandcraftedConfig):
     exit_analysis: bool = False
     exit_radius: float = 0.25
     input_range: str = "goal"
+    model_inputs: str = "state"
 
     def __post_init__(self):
         super().__post_init__()
@@ -635,6 +648,15 @@ class GaraConfig(HandcraftedConfig):
         _one_of(self, "relabel_after", RELABEL_AFTER)
         _one_of(self, "cadence", CADENCES)
         _one_of(self, "input_range", INPUT_RANGES)
+        _one_of(self, "model_inputs", MODEL_INPUTS)
+        if self.model_inputs == "split_dims":
+            if self.split_dims is None:
+                raise ValueError("model_inputs: 'split_dims' needs split_dims to name the "
+                                 "dimensions the model sees, got split_dims=None")
+            if self.input_range != "goal":
+                raise ValueError("model_inputs: 'split_dims' leaves no other dimension to "
+                                 f"narrow, so it needs input_range='goal', got "
+                                 f"{self.input_range!r}")
         if self.pair_counts == "cumulative" and self.memory != "windows":
             raise ValueError("pair_counts: 'cumulative' counts the reference's sliding windows "
                              f"and needs memory='windows', got memory={self.memory!r}")

@@ -99,7 +99,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
     @SeedJit
     @jax.vmap
     def shared_updates(forward_state, memory, rows, seg_start, seg_len, live, key_data):
-        x = jnp.concatenate([memory.start, memory.target_lo, memory.target_hi], axis=-1)
+        x = model_inputs(config, memory.start, memory.target_lo, memory.target_hi, jnp)
         keys = jax.random.wrap_key_data(key_data)
         return forward.shared_updates(forward_state.params, forward_state.opt_state, x,
                                       memory.end, rows, seg_start, seg_len, live, keys)
@@ -225,6 +225,11 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
                 cover_lo[j], cover_hi[j] = exit_box(lo[i][e], hi[i][e], exit_state[i],
                                                     config.exit_radius, config.split_dims)
         input_lo = input_hi = None
+        if config.model_inputs == "split_dims":
+            # The dimensions the model does not see are 0 in its inputs, so in its bounds too.
+            unseen = ~model_mask(config, dim)
+            input_lo = np.stack([np.where(unseen, 0.0, lo[i][s]) for i, s, _ in jobs])
+            input_hi = np.stack([np.where(unseen, 0.0, hi[i][s]) for i, s, _ in jobs])
         if config.input_range == "data":
             input_lo, input_hi = _data_input_boxes(
                 config, jax.device_get(pair_ranges(states.memory, start_goal, target_goal)),
@@ -351,6 +356,31 @@ def exit_box(goal_lo, goal_hi, exit_state, radius: float, dims=None):
     return lo, hi
 
 
+def model_mask(config, dim: int) -> np.ndarray:
+    """``bool [dim]``: the start-state dimensions GARA's forward model sees
+    (``model_inputs``)."""
+    seen = np.ones(dim, bool)
+    if config.model_inputs == "split_dims":
+        seen[:] = False
+        seen[list(config.split_dims)] = True
+    return seen
+
+
+def model_inputs(config, start, target_lo, target_hi, xp=np):
+    """The forward model's inputs ``s || G.lo || G.hi`` (``[..., 3 D]``), with the start
+    dimensions the model does not see (``model_inputs="split_dims"``) set to 0.
+
+    Example:
+        >>> from gara_jax.algorithms import GaraConfig
+        >>> s, g = np.array([[1.0, 2.0, 0.5, -0.5]]), np.zeros((1, 4))
+        >>> model_inputs(GaraConfig(model_inputs="split_dims"), s, g, g)[0, :4]
+        array([1., 2., 0., 0.])
+    """
+    if config.model_inputs != "state":
+        start = xp.where(model_mask(config, start.shape[-1]), start, 0.0)
+    return xp.concatenate([start, target_lo, target_hi], axis=-1)
+
+
 def _data_input_boxes(config, ranges, jobs, lo, hi):
     """``input_range="data"``: each job's input box, ``G_s`` narrowed along the dimensions not
     in ``split_dims`` to the range of its pair's data rows (``G_s`` itself where the pair has
@@ -461,8 +491,8 @@ def _fit_per_job(config, forward, states, jobs, start_goal, target_goal, host_ke
         r = row_of[i]
         rows = np.flatnonzero((np.arange(len(start_goal[r])) < mem.size[r]) & mem.data[r]
                               & (start_goal[r] == s_idx) & (target_goal[r] == d_idx))
-        x = np.concatenate([mem.start[r][rows], mem.target_lo[r][rows],
-                            mem.target_hi[r][rows]], axis=1)
+        x = model_inputs(config, mem.start[r][rows], mem.target_lo[r][rows],
+                         mem.target_hi[r][rows], np)
         datasets.append((x, mem.end[r][rows]))
     n_jobs = len(jobs)
     # Jobs padded to a power of two (at least 8) and rows to 1024 * 4^i (at most the memory

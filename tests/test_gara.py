@@ -187,7 +187,7 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (GaraConfig, "split_dims", ()), (GaraConfig, "split_dims", (0, 0)),
     (GaraConfig, "split_dims", (-1,)), (GaraConfig, "exit_radius", 0.0),
     (GaraConfig, "exit_radius", 0.75), (GaraConfig, "exit_analysis", 1),
-    (GaraConfig, "input_range", "box")])
+    (GaraConfig, "input_range", "box"), (GaraConfig, "model_inputs", "velocity")])
 def test_config_validation_names_the_field(cls, field, value):
     with pytest.raises(ValueError, match=field):
         cls(**{field: value})
@@ -302,3 +302,41 @@ def test_input_range_data_bounds_over_the_pairs_data(monkeypatch):
         assert (i_lo[:, :2] == s_lo[:, :2]).all() and (i_hi[:, :2] == s_hi[:, :2]).all()
         narrower |= bool(((i_hi - i_lo)[:, 2:] < (s_hi - s_lo)[:, 2:]).any())
     assert seen and narrower
+
+
+def test_position_model_sees_no_velocity(monkeypatch):
+    """``model_inputs="split_dims"``: the forward model is fitted on start states whose
+    velocities are 0 and bounded over pieces whose velocity range is the point 0, with ``x, y``
+    the piece's own."""
+    from gara_jax import partition, reach
+    from gara_jax.algorithms import refinement
+    from gara_jax.train import train_many
+
+    seen, fitted = [], []
+    real_refine, real_inputs = reach.refine_many, refinement.model_inputs
+
+    def spy_refine(*args, **kw):
+        seen.append((np.asarray(args[1]), np.asarray(args[2]), kw.get("input_lo"),
+                     kw.get("input_hi")))
+        return real_refine(*args, **kw)
+
+    def spy_inputs(config, start, target_lo, target_hi, xp=np):
+        x = real_inputs(config, start, target_lo, target_hi, xp)
+        if xp is np:  # the per-job fits' datasets
+            fitted.append(np.asarray(x))
+        return x
+
+    monkeypatch.setattr(reach, "refine_many", spy_refine)
+    monkeypatch.setattr(refinement, "model_inputs", spy_inputs)
+    lo, hi = partition.layout_boxes("u_maze", "gara")
+    cfg = GaraConfig(initial_boxes=(lo, hi), steps_per_epoch=300, eval_episodes=1,
+                     min_steps=30, shared_min_records=1, model_inputs="split_dims",
+                     forward_model="per_job")  # its datasets are host arrays, unlike the shared's
+    res = train_many(cfg, [0, 1], 1200)
+    assert sum(h["analysed"] for h in res.host_info if h) > 0 and seen
+    for s_lo, s_hi, i_lo, i_hi in seen:
+        assert (i_lo[:, :2] == s_lo[:, :2]).all() and (i_hi[:, :2] == s_hi[:, :2]).all()
+        assert (i_lo[:, 2:] == 0).all() and (i_hi[:, 2:] == 0).all()
+    rows = np.concatenate(fitted)
+    assert len(rows) and (rows[:, 2:4] == 0).all() and (rows[:, :2] != 0).any()
+    assert (rows[:, 4:] != 0).any()  # the goal's bounds are still inputs

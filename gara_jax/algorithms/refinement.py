@@ -224,19 +224,19 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
                 i, e, _ = jobs[j]
                 cover_lo[j], cover_hi[j] = exit_box(lo[i][e], hi[i][e], exit_state[i],
                                                     config.exit_radius, config.split_dims)
+        start_lo = np.stack([lo[i][s] for i, s, _ in jobs])
+        start_hi = np.stack([hi[i][s] for i, s, _ in jobs])
         input_lo = input_hi = None
         if config.model_inputs == "split_dims":
             # The dimensions the model does not see are 0 in its inputs, so in its bounds too.
             unseen = ~model_mask(config, dim)
-            input_lo = np.stack([np.where(unseen, 0.0, lo[i][s]) for i, s, _ in jobs])
-            input_hi = np.stack([np.where(unseen, 0.0, hi[i][s]) for i, s, _ in jobs])
+            input_lo, input_hi = np.where(unseen, 0.0, start_lo), np.where(unseen, 0.0, start_hi)
         if config.input_range == "data":
             input_lo, input_hi = _data_input_boxes(
                 config, jax.device_get(pair_ranges(states.memory, start_goal, target_goal)),
                 jobs, lo, hi)
         results = reach.refine_many(
-            mlp_layers(job_params),
-            np.stack([lo[i][s] for i, s, _ in jobs]), np.stack([hi[i][s] for i, s, _ in jobs]),
+            mlp_layers(job_params), start_lo, start_hi,
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
             cover_lo=cover_lo, cover_hi=cover_hi, input_lo=input_lo, input_hi=input_hi,
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
@@ -356,14 +356,21 @@ def exit_box(goal_lo, goal_hi, exit_state, radius: float, dims=None):
     return lo, hi
 
 
+def split_mask(split_dims, dim: int) -> np.ndarray:
+    """``bool [dim]``: the dimensions in ``split_dims`` (every one for ``None``)."""
+    mask = np.ones(dim, bool)
+    if split_dims is not None:
+        mask[:] = False
+        mask[list(split_dims)] = True
+    return mask
+
+
 def model_mask(config, dim: int) -> np.ndarray:
     """``bool [dim]``: the start-state dimensions GARA's forward model sees
     (``model_inputs``)."""
-    seen = np.ones(dim, bool)
     if config.model_inputs == "split_dims":
-        seen[:] = False
-        seen[list(config.split_dims)] = True
-    return seen
+        return split_mask(config.split_dims, dim)
+    return np.ones(dim, bool)
 
 
 def model_inputs(config, start, target_lo, target_hi, xp=np):
@@ -386,11 +393,8 @@ def _data_input_boxes(config, ranges, jobs, lo, hi):
     in ``split_dims`` to the range of its pair's data rows (``G_s`` itself where the pair has
     no data row, e.g. only count rows)."""
     r_lo, r_hi = ranges
-    dim = lo.shape[-1]
-    narrow = np.zeros(dim, bool)  # split_dims=None: every dimension is split, none narrowed
-    if config.split_dims is not None:
-        narrow[:] = True
-        narrow[list(config.split_dims)] = False
+    # split_dims=None: every dimension is split, none narrowed.
+    narrow = ~split_mask(config.split_dims, lo.shape[-1])
     in_lo = np.stack([lo[i][s] for i, s, _ in jobs]).astype(float)
     in_hi = np.stack([hi[i][s] for i, s, _ in jobs]).astype(float)
     for j, (i, s, d) in enumerate(jobs):

@@ -22,6 +22,7 @@ from __future__ import annotations
 from types import MappingProxyType
 
 import flax.struct
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -251,6 +252,47 @@ PARTITION_KINDS = ("handcrafted", "gara")
 #: Layouts whose authors' Handcrafted boxes overlap (the first-box rule decides a shared part):
 #: in the labyrinth ``[1,6]x[0,0.5]`` and ``[5.5,6]x[0,6]`` share ``[5.5,6]x[0,0.5]``.
 OVERLAPPING = frozenset({("labyrinth", "handcrafted")})
+
+
+#: The boxes of :data:`LAYOUT_PARTITIONS` that are not the authors' (``(x_lo, x_hi, y_lo, y_hi)``,
+#: full velocity ranges): they only make a partition a tiling, over a region the agent cannot
+#: get into from the start (``big_u_maze``: the wall ``y in [3, 4]`` and the closed-off strip
+#: above it). The authors' high levels have no such goal; ``non_targets="layout"`` makes every
+#: goal inside one of them a goal that is never targeted.
+LAYOUT_FILLERS = MappingProxyType({"big_u_maze": ((0, 6, 3, 6),)})
+
+
+def layout_fillers(layout: str) -> tuple[np.ndarray, np.ndarray]:
+    """The filler regions ``lo, hi [N, 4]`` of a layout (:data:`LAYOUT_FILLERS`; ``N = 0``
+    for a layout whose partitions are all the authors').
+
+    Example:
+        >>> lo, hi = layout_fillers("big_u_maze")
+        >>> lo.tolist(), hi.tolist(), len(layout_fillers("u_maze")[0])
+        ([[0.0, 3.0, -1.0, -1.0]], [[6.0, 6.0, 1.0, 1.0]], 0)
+    """
+    if layout not in LAYOUT_PARTITIONS:
+        raise ValueError(f"layout: no built-in partitions for {layout!r}; valid: "
+                         f"{', '.join(LAYOUT_PARTITIONS)}")
+    rows = LAYOUT_FILLERS.get(layout, ())
+    lo = np.array([(x0, y0, -1.0, -1.0) for x0, _, y0, _ in rows], float).reshape(-1, 4)
+    hi = np.array([(x1, y1, 1.0, 1.0) for _, x1, _, y1 in rows], float).reshape(-1, 4)
+    return lo, hi
+
+
+def inside_regions(lo, hi, region_lo, region_hi):
+    """``bool [G]``: which boxes ``lo/hi [G, D]`` lie inside (closed) one of the regions
+    ``region_lo/region_hi [N, D]`` (NumPy or JAX arrays; traceable).
+
+    Example:
+        >>> import numpy as np
+        >>> lo, hi = np.array([[0., 3.], [0., 0.]]), np.array([[3., 6.], [3., 3.]])
+        >>> inside_regions(lo, hi, np.array([[0., 3.]]), np.array([[6., 6.]])).tolist()
+        [True, False]
+    """
+    xp = jnp if any(isinstance(a, jax.Array) for a in (lo, hi)) else np
+    inside = (lo[:, None, :] >= region_lo[None]) & (hi[:, None, :] <= region_hi[None])
+    return xp.any(xp.all(inside, axis=-1), axis=-1)
 
 
 def state_space(n: float) -> tuple[np.ndarray, np.ndarray]:

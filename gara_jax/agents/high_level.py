@@ -201,11 +201,23 @@ def argmax_random_tie(key, values, mask) -> jax.Array:
     return jnp.argmax(jnp.where(ties, noise, -1.0)).astype(jnp.int32)
 
 
+def target_goals(n_goals, max_goals: int, targets=None) -> jax.Array:
+    """``[max_goals]``: the valid goals that ``targets`` (a ``[max_goals]`` bool mask, or
+    ``None`` for all) allows as targets; all valid goals if it allows none of them."""
+    valid = valid_goals(n_goals, max_goals)
+    if targets is None:
+        return valid
+    kept = valid & targets
+    return jnp.where(jnp.any(kept), kept, valid)
+
+
 def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random",
-           exclude_current=False, exclude=None) -> jax.Array:
+           exclude_current=False, exclude=None, targets=None) -> jax.Array:
     """Epsilon-greedy goal from ``Q[current]`` over the valid goals (pass ``epsilon=0`` for greedy).
 
     Greedy ties are broken uniformly at random, or by the lowest index (``tie_break="lowest"``).
+    ``targets`` (a ``[max_goals]`` bool mask, may be traced; ``None``: every goal) restricts
+    the choice to the goals that may be targets at all (see :func:`target_goals`).
     ``exclude_current`` (a bool, may be traced) removes ``current`` from the choice, greedy and
     random alike (unless it is the only valid goal); ``exclude`` (a ``[max_goals]`` bool mask,
     may be traced) removes those goals likewise, unless it would remove every valid goal.
@@ -219,7 +231,7 @@ def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random",
         2
     """
     k_explore, k_random, k_tie = jax.random.split(key, 3)
-    valid = valid_goals(n_goals, q.shape[-1])
+    valid = target_goals(n_goals, q.shape[-1], targets)
     others = valid & (jnp.arange(q.shape[-1]) != current)
     valid = jnp.where(exclude_current & jnp.any(others), others, valid)
     if exclude is not None:
@@ -234,12 +246,13 @@ def q_goal(key, q, current, n_goals, epsilon, tie_break: str = "random",
     return jnp.where(explore, random, greedy)
 
 
-def plan_goal(key, dist, succeeded, current, n_goals, epsilon) -> jax.Array:
+def plan_goal(key, dist, succeeded, current, n_goals, epsilon, targets=None) -> jax.Array:
     """The planner's next goal from ``current``: the next hop of a shortest known path to the exit.
 
     From a goal at distance 0 (it holds the exit) the planner targets that goal itself; with
     probability ``epsilon``, or when ``current`` has no known path, a uniformly random valid
     goal. ``dist`` comes from :func:`relax_distances` / :func:`shortest_distances`.
+    ``targets`` restricts next hops and random goals as in :func:`q_goal`.
 
     Example:
         >>> import jax, jax.numpy as jnp
@@ -249,7 +262,7 @@ def plan_goal(key, dist, succeeded, current, n_goals, epsilon) -> jax.Array:
         1
     """
     max_goals = dist.shape[0]
-    valid = valid_goals(n_goals, max_goals)
+    valid = target_goals(n_goals, max_goals, targets)
     k_explore, k_random, k_tie = jax.random.split(key, 3)
     at_exit = dist[current] == 0.0
     hop_cost = jnp.where(succeeded[current] & valid, dist, INF)
@@ -258,7 +271,11 @@ def plan_goal(key, dist, succeeded, current, n_goals, epsilon) -> jax.Array:
     known = jnp.isfinite(dist[current])
     explore = jax.random.uniform(k_explore) < epsilon
     planned = jnp.where(at_exit, jnp.asarray(current, jnp.int32), next_hop)
-    return jnp.where(explore | ~known, random_goal(k_random, n_goals), planned)
+    if targets is None:
+        random = random_goal(k_random, n_goals)
+    else:
+        random = argmax_random_tie(k_random, jnp.zeros(max_goals), valid)
+    return jnp.where(explore | ~known, random, planned)
 
 
 def decay_epsilon(config: HighLevelConfig, epsilon, decided) -> jax.Array:
@@ -273,11 +290,12 @@ def decay_epsilon(config: HighLevelConfig, epsilon, decided) -> jax.Array:
 
 
 def q_update(q, start, target, reward, next_goal, terminated, n_goals, alpha, gamma,
-             against=None):
+             against=None, targets=None):
     """One tabular Q-learning update of the entry ``Q[start, target]``.
 
     ``Q[start, target] += alpha * (reward + gamma * (1 - terminated) * max_g Q[next_goal, g]
-    - Q[start, against])``, the max over valid goals only; ``next_goal`` is the goal holding the
+    - Q[start, against])``, the max over the valid goals that may be targets (``targets``, see
+    :func:`target_goals`: what the next decision can choose); ``next_goal`` is the goal holding the
     state where the option ended. ``against`` defaults to ``target`` (ordinary Q-learning);
     the reference takes the difference against the chosen target's entry while writing into
     the reached goal's (SPEC.md section 3.9.3, ``HighLevelConfig.q_update="authors"``).
@@ -291,7 +309,7 @@ def q_update(q, start, target, reward, next_goal, terminated, n_goals, alpha, ga
         >>> float(q_update(q, 0, 1, 1.0, 2, False, 3, 0.5, 0.5, against=2)[0, 1])  # 0.5 * (3 - 1.5)
         0.75
     """
-    valid = valid_goals(n_goals, q.shape[-1])
+    valid = target_goals(n_goals, q.shape[-1], targets)
     bootstrap = jnp.max(jnp.where(valid, q[next_goal], -INF))
     td_target = reward + gamma * (1.0 - jnp.asarray(terminated, q.dtype)) * bootstrap
     old = q[start, target]
@@ -352,23 +370,24 @@ class OptionOutcome(NamedTuple):
 
 
 def learn_from_option(config: HighLevelConfig, hs: HighState, outcome: OptionOutcome, n_goals,
-                      ended) -> HighState:
+                      ended, targets=None) -> HighState:
     """Apply an option's outcome where ``ended`` (else return ``hs`` unchanged, select-style).
 
     Updates the Q-table (both variants keep it, so the table is there to inspect), the planner
     graph (edge ``start -> target`` when the target was entered, ``start != target``, and the
     pair is not marked unreachable) and the exit state (when the option terminated with a
     positive reward). With ``hs.alias`` set, the updated row is written into every row of its
-    alias group.
+    alias group. ``targets``: the goals the next decision may choose (see :func:`q_update`).
     """
     column = outcome.target if config.q_target_entry == "target" else outcome.next_goal
     against = outcome.target if config.q_update == "authors" else None
     q = q_update(hs.q, outcome.start, column, outcome.reward, outcome.next_goal,
-                 outcome.terminated, n_goals, config.alpha, config.gamma, against)
+                 outcome.terminated, n_goals, config.alpha, config.gamma, against, targets)
     if config.q_target_entry == "both":
         # The same TD target (computed from the table before either write) for the target.
         also = q_update(hs.q, outcome.start, outcome.target, outcome.reward, outcome.next_goal,
-                        outcome.terminated, n_goals, config.alpha, config.gamma)
+                        outcome.terminated, n_goals, config.alpha, config.gamma,
+                        targets=targets)
         entry = (outcome.start, outcome.target)
         q = q.at[entry].set(jnp.where(outcome.target != outcome.next_goal, also[entry], q[entry]))
     if hs.alias is not None:

@@ -185,6 +185,19 @@ class HandcraftedConfig:
             environment's observation space: GARA's must tile it exactly, Handcrafted's must
             cover it (overlaps allowed: the first box containing a state owns it). ``None``:
             the layout's partition (``gara_jax.partition.LAYOUT_PARTITIONS``).
+        non_targets: regions whose goals the high level never targets: a goal whose box lies
+            inside one (closed) is a state's goal as any other, but never chosen (greedy,
+            random exploration, planner hops, the greedy evaluation) and never the
+            bootstrap's best next choice, so no option aims at it and no pair towards it
+            builds experience for the analysis; a split's pieces of such a goal stay inside
+            it. ``None`` (every goal may be a target: the presets, and the default until it
+            is measured). ``"layout"``: the layout's filler boxes
+            (``gara_jax.partition.LAYOUT_FILLERS``: on ``big_u_maze`` the box ``[0,6]x[3,6]``
+            that this project adds to the authors' partitions to make them a tiling, over the
+            wall and the strip behind it; the authors' high levels have no such goal; the
+            other layouts have none). ``(lo, hi)``, each ``[N, D]``: regions of your own,
+            e.g. the part of a tiling that the agent cannot get into. If every goal lay
+            inside, every goal could be chosen.
 
     The low level defaults to the reference's DQN loss (``DQNConfig(loss="all_actions")``,
     see :class:`~gara_jax.agents.dqn.DQNConfig`; with the textbook loss on the taken action
@@ -231,6 +244,7 @@ class HandcraftedConfig:
     terminal_on_entry: bool = False
     goal_membership: str = "partition"
     initial_boxes: tuple | None = None
+    non_targets: str | tuple | None = None
 
     def __post_init__(self):
         _validate_common(self)
@@ -797,22 +811,72 @@ def _bools(cfg, *names):
             raise ValueError(f"{name}: must be a bool, got {getattr(cfg, name)!r}")
 
 
-def _boxes_tuple(value):
-    """``initial_boxes`` as ``(lo, hi)`` nested tuples of floats (hashable, like every field)."""
+def _boxes_tuple(value, name="initial_boxes"):
+    """Boxes (field ``name``) as ``(lo, hi)`` nested tuples of floats (hashable, like every
+    field)."""
     from gara_jax import boxes
     from gara_jax import partition as part
 
     try:
         lo, hi = value
     except (TypeError, ValueError):
-        raise ValueError("initial_boxes: must be a pair (lo, hi) of [N, D] box bounds, got "
+        raise ValueError(f"{name}: must be a pair (lo, hi) of [N, D] box bounds, got "
                          f"{value!r}") from None
-    lo, hi = boxes.validate_boxes(lo, hi, "initial_boxes")
+    lo, hi = boxes.validate_boxes(lo, hi, name)
     if lo.ndim != 2 or len(lo) < 1:
-        raise ValueError(f"initial_boxes: expected lo and hi of shape [N>=1, D], got {lo.shape}")
+        raise ValueError(f"{name}: expected lo and hi of shape [N>=1, D], got {lo.shape}")
     if not (np.isfinite(lo).all() and np.isfinite(hi).all()):
-        raise ValueError("initial_boxes: box bounds must be finite")
+        raise ValueError(f"{name}: box bounds must be finite")
     return part.boxes_as_tuples(lo, hi)
+
+
+def _layout_name(env_name: str) -> str:
+    """The maze layout whose built-in partitions an environment uses (``point_u_maze``: the
+    U-maze's)."""
+    return "u_maze" if env_name == "point_u_maze" else env_name
+
+
+def _validate_non_targets(cfg):
+    from gara_jax import partition as part
+
+    if cfg.non_targets is None:
+        return
+    if isinstance(cfg.non_targets, str):
+        if cfg.non_targets != "layout":
+            raise ValueError(f"non_targets: must be None, 'layout' or (lo, hi) regions, got "
+                             f"{cfg.non_targets!r}")
+        if _layout_name(cfg.env) not in part.LAYOUT_PARTITIONS:
+            raise ValueError(f"non_targets: 'layout' needs a maze layout; {cfg.env!r} has none "
+                             "(give the regions as (lo, hi))")
+        return
+    object.__setattr__(cfg, "non_targets", _boxes_tuple(cfg.non_targets, "non_targets"))
+
+
+def non_target_regions(config, dim: int):
+    """``(lo, hi)``, each ``[N, dim]``, of ``config.non_targets`` (``None`` when there is no
+    region, so that nothing changes in the compiled program).
+
+    Example:
+        >>> [a.tolist() for a in non_target_regions(GaraConfig(env="big_u_maze",
+        ...                                                    non_targets="layout"), 4)]
+        [[[0.0, 3.0, -1.0, -1.0]], [[6.0, 6.0, 1.0, 1.0]]]
+        >>> non_target_regions(GaraConfig(non_targets="layout"), 4) is None  # the U-maze has none
+        True
+    """
+    from gara_jax import partition as part
+
+    if config.non_targets is None:
+        return None
+    if config.non_targets == "layout":
+        lo, hi = part.layout_fillers(_layout_name(config.env))
+    else:
+        lo, hi = (np.asarray(a, float) for a in config.non_targets)
+    if len(lo) == 0:
+        return None
+    if lo.shape[1] != dim:
+        raise ValueError(f"non_targets: regions of dimension {lo.shape[1]}, the observations "
+                         f"of {config.env!r} have {dim}")
+    return lo, hi
 
 
 def _validate_common(cfg):
@@ -825,6 +889,7 @@ def _validate_common(cfg):
         if len(cfg.initial_boxes[0]) > cfg.max_goals:
             raise ValueError(f"max_goals: {len(cfg.initial_boxes[0])} initial_boxes do not fit "
                              f"in max_goals={cfg.max_goals}")
+    _validate_non_targets(cfg)
     if cfg.max_episode_steps is not None:
         _positive_int(cfg, "max_episode_steps")
     envs.validate_collision(cfg.env, cfg.collision)
@@ -1102,14 +1167,25 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         # A valid tiling covers every state; clamp so a stray -1 can never index out of range.
         return jnp.maximum(part.locate(partition, s), 0).astype(jnp.int32)
 
+    regions = non_target_regions(config, dim)
+
+    def target_mask(partition):
+        """``[G]`` bool: the goals that may be targets (``None``: all; ``non_targets``)."""
+        if regions is None:
+            return None
+        return ~part.inside_regions(partition.lo, partition.hi, jnp.asarray(regions[0]),
+                                    jnp.asarray(regions[1]))
+
     def choose_goal(key, high, partition, here, epsilon, tabu=None):
+        targets = target_mask(partition)
         if config.planning:
-            return hl.plan_goal(key, high.dist, high.succeeded, here, partition.count, epsilon)
+            return hl.plan_goal(key, high.dist, high.succeeded, here, partition.count, epsilon,
+                                targets)
         exclude = False
         if config.self_target == "exit_goal":
             exclude = ~(high.exit_known & (locate(partition, high.exit_state) == here))
         return hl.q_goal(key, high.q, here, partition.count, epsilon, high_cfg.tie_break,
-                         exclude, tabu)
+                         exclude, tabu, targets)
 
     M = config.decision_memory
 
@@ -1261,7 +1337,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
             terminated=terminated, reached=option.reached, exit_state=next_s,
             blocked=s.unreachable[option.start_goal, option.target])
         high = hl.learn_from_option(high_cfg, high, outcome, partition.count,
-                                    ended & ~option.stale)
+                                    ended & ~option.stale, target_mask(partition))
         if config.planning:
             dist = high.dist
             for _ in range(high_cfg.planner_sweeps):

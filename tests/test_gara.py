@@ -187,7 +187,8 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (GaraConfig, "split_dims", ()), (GaraConfig, "split_dims", (0, 0)),
     (GaraConfig, "split_dims", (-1,)), (GaraConfig, "exit_radius", 0.0),
     (GaraConfig, "exit_radius", 0.75), (GaraConfig, "exit_analysis", 1),
-    (GaraConfig, "input_range", "box"), (GaraConfig, "model_inputs", "velocity")])
+    (GaraConfig, "input_range", "box"), (GaraConfig, "model_inputs", "velocity"),
+    (HandcraftedConfig, "non_targets", "filler"), (GaraConfig, "non_targets", ([0, 0], [1]))])
 def test_config_validation_names_the_field(cls, field, value):
     with pytest.raises(ValueError, match=field):
         cls(**{field: value})
@@ -340,3 +341,30 @@ def test_position_model_sees_no_velocity(monkeypatch):
     rows = np.concatenate(fitted)
     assert len(rows) and (rows[:, 2:4] == 0).all() and (rows[:, :2] != 0).any()
     assert (rows[:, 4:] != 0).any()  # the goal's bounds are still inputs
+
+
+def test_non_targets_are_never_chosen_end_to_end():
+    """``non_targets``: no option, in training or in the greedy evaluation, aims at a goal
+    inside a region (the memory's rows hold every option's target box); the config checks the
+    regions and ``"layout"`` gives the layout's filler boxes."""
+    import envs
+    from gara_jax import partition
+    from gara_jax.algorithms.gara import non_target_regions
+    from gara_jax.train import train_many
+
+    lo, hi = partition.layout_boxes("u_maze", "gara")  # [0,1]x[0,3] and [1,3]x[0,3]
+    right = ([[1.0, 0.0, -1.0, -1.0]], [[3.0, 3.0, 1.0, 1.0]])
+    cfg = GaraConfig(steps_per_epoch=300, eval_episodes=1, min_steps=10**9, non_targets=right)
+    res = train_many(cfg, [0, 1], 600)
+    mem = res.final.states.memory
+    for i in range(2):
+        rows = np.asarray(mem.target_lo[i])[: int(mem.size[i])]
+        assert len(rows) and (rows[:, 0] == 0.0).all()  # every option aimed at [0,1]x[0,3]
+    assert non_target_regions(cfg, 4)[0].tolist() == right[0]
+    assert non_target_regions(GaraConfig(env="big_u_maze", non_targets="layout"), 4)[1].tolist() \
+        == [[6.0, 6.0, 1.0, 1.0]]
+    with pytest.raises(ValueError, match="non_targets: regions of dimension 2"):
+        non_target_regions(GaraConfig(non_targets=([[0.0, 0.0]], [[1.0, 1.0]])), 4)
+    envs.register("u_maze_no_layout", lambda **o: envs.make("u_maze", **o))
+    with pytest.raises(ValueError, match="non_targets: 'layout' needs a maze layout"):
+        GaraConfig(env="u_maze_no_layout", initial_boxes=(lo, hi), non_targets="layout")

@@ -153,3 +153,28 @@ def test_learn_from_option_adds_edges_only_for_successful_allowed_options():
 def test_config_validation_names_the_field(field, value):
     with pytest.raises(ValueError, match=field):
         hl.HighLevelConfig(**{field: value})
+
+
+def test_targets_mask_restricts_choice_bootstrap_and_planner():
+    """``targets`` (``non_targets``): a masked goal is never chosen, greedy or random, nor the
+    bootstrap's best; an all-false mask falls back to every valid goal."""
+    q = jnp.zeros((5, 5)).at[0].set(jnp.array([0.0, 0.2, 9.0, 0.1, 0.0]))
+    targets = jnp.array([True, True, False, True, True])
+    keys = jax.random.split(jax.random.key(2), 600)
+    choose = jax.jit(jax.vmap(lambda k, eps, t: hl.q_goal(k, q, 0, 4, eps, targets=t),
+                              in_axes=(0, None, None)))  # one compile for the three calls
+    assert set(np.asarray(choose(keys, 0.0, targets)).tolist()) == {1}  # 9.0 masked, 4 padding
+    assert set(np.asarray(choose(keys, 1.0, targets)).tolist()) == {0, 1, 3}
+    assert set(np.asarray(choose(keys, 1.0, jnp.zeros(5, bool))).tolist()) == {0, 1, 2, 3}
+    # Bootstrap from row 0: max over goals 0, 1, 3 is 0.2, not the masked 9.0.
+    out = hl.q_update(q, 3, 1, 1.0, 0, False, 4, 0.5, 0.5, targets=targets)
+    assert float(out[3, 1]) == pytest.approx(0.5 * (1.0 + 0.5 * 0.2))
+    # Planner: the shortest way 0 -> 2 -> 3 (exit) is masked at 2, so the hop is 1 (-> 4 -> 3).
+    succ = jnp.zeros((5, 5), bool).at[0, 2].set(True).at[2, 3].set(True)
+    succ = succ.at[0, 1].set(True).at[1, 4].set(True).at[4, 3].set(True)
+    dist = hl.shortest_distances(succ, jnp.array([False, False, False, True, False]), 5)
+    plan = jax.jit(jax.vmap(lambda k, eps, t: hl.plan_goal(k, dist, succ, 0, 5, eps, t),
+                            in_axes=(0, None, None)))
+    assert set(np.asarray(plan(keys, 0.0, jnp.ones(5, bool))).tolist()) == {2}
+    assert set(np.asarray(plan(keys, 0.0, targets)).tolist()) == {1}
+    assert set(np.asarray(plan(keys, 1.0, targets)).tolist()) == {0, 1, 3, 4}

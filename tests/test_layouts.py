@@ -276,3 +276,17 @@ def test_variant_table_pairs_each_variant_with_refinement_off_and_gara():
     assert row.startswith("| u_maze | `gara+one_cut` | 1.00 ± 0.00 | 1.00 ± 0.00 | 0.50 ± 3.18 "
                           "| 0.50 ± 0.00 | 3.0 | 0.5 |")
     assert "labyrinth" not in text and mazes.variant_table({"u_maze": {}}) == ""
+    # A gara variant pairs with the refinement-off agent that has the same change; a variant of
+    # another base pairs with that base and has no refinement-off comparison.
+    runs["u_maze"].update({"gara+no_filler_goal": run([1.0, 0.5]),
+                           "gara_no_refinement+no_filler_goal": run([0.5, 0.5]),
+                           "handcrafted+no_filler_goal": run([1.0, 1.0]),
+                           "handcrafted": run([0.5, 1.0])})
+    rows = {line.split("|")[2].strip(): line for line in mazes.variant_table(runs).splitlines()}
+    assert "| 0.25 ± 3.18 | 0.25 ± 3.18 |" in rows["`gara+no_filler_goal`"]
+    assert "| - | 0.25 ± 3.18 |" in rows["`handcrafted+no_filler_goal`"]
+    assert "| - | 0.00 ± 3.18 |" in rows["`gara_no_refinement+no_filler_goal`"]
+    off = mazes.method_config("gara_no_refinement+no_filler_goal", "big_u_maze")
+    hand = mazes.method_config("handcrafted+no_filler_goal", "big_u_maze")
+    assert (off.min_steps, off.non_targets) == (10**9, "layout")
+    assert type(hand).__name__ == "HandcraftedConfig" and hand.max_goals == 7

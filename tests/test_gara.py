@@ -366,5 +366,7 @@ def test_non_targets_are_never_chosen_end_to_end():
     with pytest.raises(ValueError, match="non_targets: regions of dimension 2"):
         non_target_regions(GaraConfig(non_targets=([[0.0, 0.0]], [[1.0, 1.0]])), 4)
     envs.register("u_maze_no_layout", lambda **o: envs.make("u_maze", **o))
-    with pytest.raises(ValueError, match="non_targets: 'layout' needs a maze layout"):
-        GaraConfig(env="u_maze_no_layout", initial_boxes=(lo, hi), non_targets="layout")
+    assert non_target_regions(GaraConfig.reference(env="u_maze_no_layout",
+                                                   initial_boxes=(lo, hi)), 4) is None
+    assert GaraConfig.reference().non_targets == HandcraftedConfig.reference().non_targets \
+        == "layout"

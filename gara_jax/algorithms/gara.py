@@ -190,12 +190,11 @@ class HandcraftedConfig:
             random exploration, planner hops, the greedy evaluation) and never the
             bootstrap's best next choice, so no option aims at it and no pair towards it
             builds experience for the analysis; a split's pieces of such a goal stay inside
-            it. ``None`` (every goal may be a target: the presets, and the default until it
-            is measured). ``"layout"``: the layout's filler boxes
+            it. ``None``: every goal may be a target. ``"layout"`` (the presets): the layout's filler boxes
             (``gara_jax.partition.LAYOUT_FILLERS``: on ``big_u_maze`` the box ``[0,6]x[3,6]``
             that this project adds to the authors' partitions to make them a tiling, over the
             wall and the strip behind it; the authors' high levels have no such goal; the
-            other layouts have none). ``(lo, hi)``, each ``[N, D]``: regions of your own,
+            other layouts, and environments without a layout, have none). ``(lo, hi)``, each ``[N, D]``: regions of your own,
             e.g. the part of a tiling that the agent cannot get into. If every goal lay
             inside, every goal could be chosen.
 
@@ -265,7 +264,10 @@ class HandcraftedConfig:
           the difference taken against the chosen target's (``q_update="authors"``, 3.3 and
           3.9.3);
         - episodes of at most 302 steps, training and evaluation (``max_episode_steps``,
-          3.1 and 3.9.3: the reference's loop check; the environment's own limit is 300).
+          3.1 and 3.9.3: the reference's loop check; the environment's own limit is 300);
+        - the goals the high level chooses from are the authors' boxes: a box this project
+          adds to make a layout's partition a tiling (``big_u_maze``'s ``[0,6]x[3,6]``,
+          SPEC.md 2.1) is never a target (``non_targets="layout"``; no effect elsewhere).
 
         ``version="results"``, the version that made the authors' result files (3.9.2): the
         same, with the high-level epsilon decrement 0.005 (3.3, 3.9.2) and a low-level replay
@@ -284,7 +286,8 @@ class HandcraftedConfig:
         if version == "results":
             high = dataclasses.replace(high, epsilon_decrement=0.005)
             low = dataclasses.replace(low, buffer_size=10_000)
-        fields = dict(intrinsic="every_step", entry_reward="constant", goal_membership="box",
+        fields = dict(non_targets="layout",
+                      intrinsic="every_step", entry_reward="constant", goal_membership="box",
                       reached_at_start=False, stall_penalty=None, self_target="always",
                       max_episode_steps=REFERENCE_EPISODE_STEPS, low=low, high=high)
         fields.update(overrides)
@@ -724,7 +727,11 @@ class GaraConfig(HandcraftedConfig):
           into the reached goal's entry with its difference taken against the chosen
           target's (``high.q_update="authors"``, 3.3, 3.9.3);
         - episodes of at most 302 steps, training and evaluation (``max_episode_steps``,
-          3.1 and 3.9.3).
+          3.1 and 3.9.3);
+        - the high level chooses among the authors' boxes only: the box this project adds to
+          make ``big_u_maze``'s partition a tiling (``[0,6]x[3,6]``, SPEC.md 2.1; the authors'
+          boxes cover ``y <= 3``) is never a target (``non_targets="layout"``; no effect on
+          the other layouts).
 
         Known differences from the authors' code: the memory stores target boxes, not
         indices, so windows towards a goal split since are no pair's data; a split clears
@@ -781,7 +788,7 @@ class GaraConfig(HandcraftedConfig):
             # What both versions do (SPEC.md 3.9.3); the final version's relabel (3.9.2).
             pair_counts="cumulative", records_after_split="kept", relabel_after="update",
             q_rows_after_split="aliased_at_split", relabel_counts="move", cadence="episode",
-            max_episode_steps=REFERENCE_EPISODE_STEPS)
+            max_episode_steps=REFERENCE_EPISODE_STEPS, non_targets="layout")
         if version == "results":
             # The results version's own (SPEC.md 3.9.2).
             fields.update(coverage="results", split_epsilon_boost=1.0, memory_capacity=10_000,
@@ -837,17 +844,12 @@ def _layout_name(env_name: str) -> str:
 
 
 def _validate_non_targets(cfg):
-    from gara_jax import partition as part
-
     if cfg.non_targets is None:
         return
     if isinstance(cfg.non_targets, str):
         if cfg.non_targets != "layout":
             raise ValueError(f"non_targets: must be None, 'layout' or (lo, hi) regions, got "
                              f"{cfg.non_targets!r}")
-        if _layout_name(cfg.env) not in part.LAYOUT_PARTITIONS:
-            raise ValueError(f"non_targets: 'layout' needs a maze layout; {cfg.env!r} has none "
-                             "(give the regions as (lo, hi))")
         return
     object.__setattr__(cfg, "non_targets", _boxes_tuple(cfg.non_targets, "non_targets"))
 
@@ -868,7 +870,10 @@ def non_target_regions(config, dim: int):
     if config.non_targets is None:
         return None
     if config.non_targets == "layout":
-        lo, hi = part.layout_fillers(_layout_name(config.env))
+        layout = _layout_name(config.env)
+        if layout not in part.LAYOUT_PARTITIONS:
+            return None  # an environment without a layout has no filler boxes
+        lo, hi = part.layout_fillers(layout)
     else:
         lo, hi = (np.asarray(a, float) for a in config.non_targets)
     if len(lo) == 0:

@@ -190,13 +190,13 @@ class HandcraftedConfig:
             random exploration, planner hops, the greedy evaluation) and never the
             bootstrap's best next choice, so no option aims at it and no pair towards it
             builds experience for the analysis; a split's pieces of such a goal stay inside
-            it. ``None``: every goal may be a target. ``"layout"`` (the presets): the layout's filler boxes
-            (``gara_jax.partition.LAYOUT_FILLERS``: on ``big_u_maze`` the box ``[0,6]x[3,6]``
-            that this project adds to the authors' partitions to make them a tiling, over the
-            wall and the strip behind it; the authors' high levels have no such goal; the
-            other layouts, and environments without a layout, have none). ``(lo, hi)``, each ``[N, D]``: regions of your own,
-            e.g. the part of a tiling that the agent cannot get into. If every goal lay
-            inside, every goal could be chosen.
+            it. ``None``: every goal may be a target. ``"layout"`` (the presets): the layout's
+            filler boxes (``gara_jax.partition.LAYOUT_FILLERS``: on ``big_u_maze`` the box
+            ``[0,6]x[3,6]`` that this project adds to the authors' partitions to make them a
+            tiling, over the wall and the strip behind it; the authors' high levels have no
+            such goal; the other layouts, and environments without a layout, have none).
+            ``(lo, hi)``, each ``[N, D]``: regions of your own, e.g. the part of a tiling that
+            the agent cannot get into. If every goal lay inside, every goal could be chosen.
 
     The low level defaults to the reference's DQN loss (``DQNConfig(loss="all_actions")``,
     see :class:`~gara_jax.agents.dqn.DQNConfig`; with the textbook loss on the taken action

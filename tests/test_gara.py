@@ -344,9 +344,9 @@ def test_position_model_sees_no_velocity(monkeypatch):
 
 
 def test_non_targets_are_never_chosen_end_to_end():
-    """``non_targets``: no option, in training or in the greedy evaluation, aims at a goal
-    inside a region (the memory's rows hold every option's target box); the config checks the
-    regions and ``"layout"`` gives the layout's filler boxes."""
+    """``non_targets``: no training option aims at a goal inside a region (the memory's rows
+    hold every option's target box); the regions are checked, ``"layout"`` gives the layout's
+    filler boxes (none without a layout), and the presets take it."""
     import envs
     from gara_jax import partition
     from gara_jax.algorithms.gara import non_target_regions

@@ -55,6 +55,11 @@ import numpy as np
 
 MAZES = ("u_maze", "four_rooms", "u_maze_6", "big_u_maze", "labyrinth")
 METHODS = ("gara", "gara_no_refinement", "handcrafted", "hiro", "hiro_paper")
+# What the three no-filler variants (GARA, refinement off, Handcrafted) change.
+_NO_FILLER = ("the filler box [0,6]x[3,6] (added to the authors' partition to make it a tiling; "
+              "over the wall and the strip behind it) is never a target, so the high level "
+              "chooses among the authors' goals (non_targets='layout'; changes big_u_maze only)",
+              {"non_targets": "layout"})
 #: Variants for the refinement study, each a method of :data:`METHODS` (its *base*:
 #: ``GaraConfig()`` unless a third entry names another) with what its name says changed
 #: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides[,
@@ -121,17 +126,14 @@ VARIANTS = {
         "the exit analysis with the position-only forward model (its bounds over G_e's "
         "velocities were wider than the maze: experiments.exit_bounds)",
         {"exit_analysis": True, "model_inputs": "split_dims"}),
-}
-_NO_FILLER = ("the filler box [0,6]x[3,6] (added to the authors' partition to make it a tiling; "
-              "over the wall and the strip behind it) is never a target, so the high level "
-              "chooses among the authors' goals (non_targets='layout'; changes big_u_maze only)",
-              {"non_targets": "layout"})
-VARIANTS.update({
     "gara+no_filler_goal": _NO_FILLER,
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),
     "handcrafted+no_filler_goal": (*_NO_FILLER, "handcrafted"),
-})
+}
 ALL_METHODS = METHODS + tuple(VARIANTS)
+QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
+CURVE_POINTS = 60  # points of the training-success-by-steps curve stored per run
+TRAIN_WINDOW = 9000  # steps of the training-success window (as in the paper's figure (b))
 
 
 def variant_base(method: str) -> str:
@@ -144,9 +146,6 @@ def variant_base(method: str) -> str:
     if method in VARIANTS:
         return VARIANTS[method][2] if len(VARIANTS[method]) > 2 else "gara"
     return method
-QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
-CURVE_POINTS = 60  # points of the training-success-by-steps curve stored per run
-TRAIN_WINDOW = 9000  # steps of the training-success window (as in the paper's figure (b))
 
 
 def method_config(method: str, maze: str, steps_per_epoch=None, eval_episodes=None):

@@ -22,7 +22,6 @@ from __future__ import annotations
 from types import MappingProxyType
 
 import flax.struct
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -282,7 +281,7 @@ def layout_fillers(layout: str) -> tuple[np.ndarray, np.ndarray]:
 
 def inside_regions(lo, hi, region_lo, region_hi):
     """``bool [G]``: which boxes ``lo/hi [G, D]`` lie inside (closed) one of the regions
-    ``region_lo/region_hi [N, D]`` (NumPy or JAX arrays; traceable).
+    ``region_lo/region_hi [N, D]`` (traceable).
 
     Example:
         >>> import numpy as np
@@ -290,9 +289,9 @@ def inside_regions(lo, hi, region_lo, region_hi):
         >>> inside_regions(lo, hi, np.array([[0., 3.]]), np.array([[6., 6.]])).tolist()
         [True, False]
     """
-    xp = jnp if any(isinstance(a, jax.Array) for a in (lo, hi)) else np
+    lo, hi = jnp.asarray(lo), jnp.asarray(hi)
     inside = (lo[:, None, :] >= region_lo[None]) & (hi[:, None, :] <= region_hi[None])
-    return xp.any(xp.all(inside, axis=-1), axis=-1)
+    return jnp.any(jnp.all(inside, axis=-1), axis=-1)
 
 
 def state_space(n: float) -> tuple[np.ndarray, np.ndarray]:

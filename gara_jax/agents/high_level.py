@@ -271,7 +271,7 @@ def plan_goal(key, dist, succeeded, current, n_goals, epsilon, targets=None) -> 
     known = jnp.isfinite(dist[current])
     explore = jax.random.uniform(k_explore) < epsilon
     planned = jnp.where(at_exit, jnp.asarray(current, jnp.int32), next_hop)
-    if targets is None:
+    if targets is None:  # unmasked: the draw of every earlier run, bit for bit
         random = random_goal(k_random, n_goals)
     else:
         random = argmax_random_tie(k_random, jnp.zeros(max_goals), valid)

@@ -635,7 +635,7 @@ class GaraConfig(HandcraftedConfig):
             if self.env in envs.ENV_NAMES:
                 from envs.layouts import layout_spec
 
-                n = layout_spec("u_maze" if self.env == "point_u_maze" else self.env)["n"]
+                n = layout_spec(_layout_name(self.env))["n"]
                 if not 0.0 < self.initial_split_x < n:
                     raise ValueError(f"initial_split_x: must be None or lie strictly inside the "
                                      f"maze's x range (0, {n:g}), got {self.initial_split_x}")
@@ -1043,7 +1043,7 @@ def initial_partition(config, env=None, env_params=None):
         p = part.from_boxes(*config.initial_boxes, np.asarray(space.low), np.asarray(space.high),
                             config.max_goals, overlap=not refining, name="initial_boxes")
     else:
-        layout = "u_maze" if config.env == "point_u_maze" else config.env
+        layout = _layout_name(config.env)
         if layout not in part.LAYOUT_PARTITIONS:
             raise ValueError(
                 f"initial_boxes: environment {config.env!r} has no built-in partition (the maze "
@@ -1178,8 +1178,7 @@ def make_gara(config: GaraConfig | HandcraftedConfig) -> Algorithm:
         """``[G]`` bool: the goals that may be targets (``None``: all; ``non_targets``)."""
         if regions is None:
             return None
-        return ~part.inside_regions(partition.lo, partition.hi, jnp.asarray(regions[0]),
-                                    jnp.asarray(regions[1]))
+        return ~part.inside_regions(partition.lo, partition.hi, *regions)
 
     def choose_goal(key, high, partition, here, epsilon, tabu=None):
         targets = target_mask(partition)

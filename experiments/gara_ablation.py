@@ -377,6 +377,7 @@ def summarize_run(result, total_steps: int) -> dict:
         "no_reach": float(per_seed("no_reach")) if host else 0.0,
         "exit_analysed": float(per_seed("exit_analysed")) if host else 0.0,
         "exit_splits": float(per_seed("exit_splits")) if host else 0.0,
+        "start_skips": float(per_seed("start_skips")) if host else 0.0,
         "episodes_min": int(min(n_episodes)),
         "greedy_outcomes": greedy_outcomes(result),
         "wall_s": round(result.wall_time_s, 1),

@@ -126,6 +126,17 @@ VARIANTS = {
         "the exit analysis with the position-only forward model (its bounds over G_e's "
         "velocities were wider than the maze: experiments.exit_bounds)",
         {"exit_analysis": True, "model_inputs": "split_dims"}),
+    "gara+keep_start_goal": (
+        "the goal holding the start is never split (keep_start_goal=True): on big_u_maze the "
+        "splits that cut the start's region are where splitting agents lost",
+        {"keep_start_goal": True}),
+    "gara+data_velocities+keep_start_goal": (
+        "bounds over the data's velocities (more certified splits) and the start's goal "
+        "never split", {"input_range": "data", "keep_start_goal": True}),
+    "gara+position_model+keep_start_goal": (
+        "the position-only forward model (its splits all cut the start's region on "
+        "big_u_maze) and the start's goal never split",
+        {"model_inputs": "split_dims", "keep_start_goal": True}),
     "gara+no_filler_goal": _NO_FILLER,
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),
     "handcrafted+no_filler_goal": (*_NO_FILLER, "handcrafted"),

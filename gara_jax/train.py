@@ -497,7 +497,7 @@ def _global_states(local, mesh: Mesh, n_seeds: int):
 
 
 _SUMMED_INFO = ("triggered", "stable", "analysed", "splits", "reaches", "no_reach",
-                "capacity_skips", "fit_updates", "exit_analysed", "exit_splits")
+                "capacity_skips", "fit_updates", "start_skips", "exit_analysed", "exit_splits")
 
 
 def _gather_info(info: dict) -> dict:

@@ -53,14 +53,15 @@ from gara_jax.networks import mlp_layers
 from gara_jax.sharding import SeedJit
 
 
-def make_host_update(config, locate, exit_goals, dqn, forward):
+def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
     """``host_update(states, epoch) -> (states, info)`` for a :class:`GaraConfig`.
 
     ``locate``/``exit_goals`` are the agent's goal lookups, ``dqn`` its low-level learner and
-    ``forward`` the :class:`~gara_jax.agents.forward_model.ForwardModel`. ``info`` counts what
-    happened (``triggered``, ``stable``, ``analysed``, ``splits``, ``reaches``, ``no_reach``,
-    ``capacity_skips``, ``fit_updates``; of them ``exit_analysed``, ``exit_splits`` for the
-    ``exit_analysis`` pairs), holds ``changed [n_seeds]`` (partition grew),
+    ``forward`` the :class:`~gara_jax.agents.forward_model.ForwardModel`; ``start_obs``
+    (``[N, D]``, with ``keep_start_goal``) the start states whose goals are never ``G_s``.
+    ``info`` counts what happened (``triggered``, ``stable``, ``analysed``, ``splits``,
+    ``reaches``, ``no_reach``, ``capacity_skips``, ``fit_updates``, ``start_skips``; of them
+    ``exit_analysed``, ``exit_splits`` for the ``exit_analysis`` pairs), holds ``changed [n_seeds]`` (partition grew),
     ``updated [n_seeds]`` (a split, or a whole ``G_s`` found reaching) and the time spent
     (``fit_s``, ``refine_s``, ``host_s``).
     """
@@ -168,7 +169,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             host_key=states.host_key, records=states.forward.records,
             mse_last=states.forward.mse_last, mse_prev=states.forward.mse_prev))
         info = dict(epoch=epoch, triggered=0, stable=0, analysed=0, splits=0, reaches=0,
-                    no_reach=0, capacity_skips=0, fit_updates=0, exit_analysed=0, exit_splits=0,
+                    no_reach=0, capacity_skips=0, fit_updates=0, start_skips=0,
+                    exit_analysed=0, exit_splits=0,
                     changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
                     fit_s=0.0, refine_s=0.0)
 
@@ -185,6 +187,13 @@ def make_host_update(config, locate, exit_goals, dqn, forward):
             ok &= np.asarray(only, bool).reshape(n_seeds)[:, None, None]
         live_goals = np.arange(G)[None, :] < host["count"][:, None]
         ok &= live_goals[:, :, None] & live_goals[:, None, :]
+        if start_obs is not None:
+            # keep_start_goal: a goal holding a start state is never G_s (closed boxes).
+            starts = np.asarray(start_obs)[None, None]
+            holds = ((starts >= host["lo"][:, :, None]) & (starts <= host["hi"][:, :, None])
+                     ).all(-1).any(-1)
+            info["start_skips"] = int((ok & holds[:, :, None]).sum())
+            ok &= ~holds[:, :, None]
         info["triggered"] = int(ok.sum())
 
         # 2. Forward models; the jobs whose model is ready for analysis, and its parameters.

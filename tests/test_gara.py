@@ -187,6 +187,7 @@ def test_handcrafted_has_no_host_step_and_six_goals():
     (GaraConfig, "split_dims", ()), (GaraConfig, "split_dims", (0, 0)),
     (GaraConfig, "split_dims", (-1,)), (GaraConfig, "exit_radius", 0.0),
     (GaraConfig, "exit_radius", 0.75), (GaraConfig, "exit_analysis", 1),
+    (GaraConfig, "keep_start_goal", "yes"),
     (GaraConfig, "input_range", "box"), (GaraConfig, "model_inputs", "velocity"),
     (HandcraftedConfig, "non_targets", "filler"), (GaraConfig, "non_targets", ([0, 0], [1]))])
 def test_config_validation_names_the_field(cls, field, value):
@@ -341,6 +342,39 @@ def test_position_model_sees_no_velocity(monkeypatch):
     rows = np.concatenate(fitted)
     assert len(rows) and (rows[:, 2:4] == 0).all() and (rows[:, :2] != 0).any()
     assert (rows[:, 4:] != 0).any()  # the goal's bounds are still inputs
+
+
+def test_keep_start_goal_never_splits_the_goal_the_episodes_start_in():
+    """End to end on a short U-maze where the default splits the start's goal ``[0,1]x[0,3]``
+    (seed 3): with ``keep_start_goal`` the triggered pairs from it are held back and counted,
+    other pairs are still analysed, and that goal is whole in every final partition."""
+    import dataclasses
+
+    from gara_jax import partition
+    from gara_jax.train import final_partitions, train_many
+
+    envs.register("u_maze_short_start", lambda **o: envs.make(
+        "u_maze", **{"max_steps": 60, **o}))
+    lo, hi = partition.layout_boxes("u_maze", "gara")
+    cfg = GaraConfig(env="u_maze_short_start", initial_boxes=(lo, hi), steps_per_epoch=300,
+                     eval_episodes=1, min_steps=30, shared_min_records=1)
+    start_box = [0.0, 0.0, 1.0, 3.0]
+
+    def start_goal_whole(p):
+        n = int(p.count)
+        boxes = np.c_[np.asarray(p.lo)[:n, :2], np.asarray(p.hi)[:n, :2]]
+        return any(np.allclose(b, start_box) for b in boxes)
+
+    for keep in (False, True):
+        res = train_many(dataclasses.replace(cfg, keep_start_goal=keep), [2, 3], 1500)
+        info = [h for h in res.host_info if h]
+        whole = [start_goal_whole(p) for p in final_partitions(res)]
+        skips = sum(h["start_skips"] for h in info)
+        if keep:
+            assert all(whole) and skips > 0
+            assert sum(h["analysed"] for h in info) > 0  # the other goal is still analysed
+        else:
+            assert not all(whole) and skips == 0  # the default does split it here
 
 
 def test_non_targets_are_never_chosen_end_to_end():

@@ -128,7 +128,7 @@ VARIANTS = {
         {"exit_analysis": True, "model_inputs": "split_dims"}),
     "gara+keep_start_goal": (
         "the goal holding the start is never split (keep_start_goal=True): on big_u_maze the "
-        "splits that cut the start's region are where splitting agents lost",
+        "position-only model's losses were in the seeds that cut the start's region",
         {"keep_start_goal": True}),
     "gara+data_velocities+keep_start_goal": (
         "bounds over the data's velocities (more certified splits) and the start's goal "

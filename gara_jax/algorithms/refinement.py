@@ -7,7 +7,8 @@ episode. Read top to bottom, for all seeds at once (the states are batched over 
 
 1. **Trigger** (SPEC.md section 3.5). A pair ``(G_s, G_d)``, ``s != d``, explored during the
    last epoch, not known reachable, not blocked (a split that did not fit), not marked
-   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience; with
+   unreachable when ``skip_unreachable``, with at least ``min_steps`` of experience, and
+   with ``keep_start_goal`` no ``G_s`` that holds a start state; with
    ``exit_analysis`` also ``(G_e, G_e)``, ``G_e`` the goal holding the last exit state, whose
    analysis measures coverage against a box around that state (:func:`exit_box`). With
    ``pair_counts="memory"`` the experience is derived from the high-level memory (the summed
@@ -61,9 +62,9 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
     (``[N, D]``, with ``keep_start_goal``) the start states whose goals are never ``G_s``.
     ``info`` counts what happened (``triggered``, ``stable``, ``analysed``, ``splits``,
     ``reaches``, ``no_reach``, ``capacity_skips``, ``fit_updates``, ``start_skips``; of them
-    ``exit_analysed``, ``exit_splits`` for the ``exit_analysis`` pairs), holds ``changed [n_seeds]`` (partition grew),
-    ``updated [n_seeds]`` (a split, or a whole ``G_s`` found reaching) and the time spent
-    (``fit_s``, ``refine_s``, ``host_s``).
+    ``exit_analysed``, ``exit_splits`` for the ``exit_analysis`` pairs), holds
+    ``changed [n_seeds]`` (partition grew), ``updated [n_seeds]`` (a split, or a whole ``G_s``
+    found reaching) and the time spent (``fit_s``, ``refine_s``, ``host_s``).
     """
     from gara_jax import partition as part
     from gara_jax import reach

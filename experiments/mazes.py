@@ -143,6 +143,9 @@ VARIANTS = {
         "big_u_maze) and the start's goal never split",
         {"model_inputs": "split_dims", "keep_start_goal": True}),
     "gara+no_filler_goal": _NO_FILLER,
+    "gara+no_filler_goal+keep_start_goal": (
+        "the filler box never a target and the start's goal never split, so on big_u_maze "
+        "only the right-hand region is refined", {**_NO_FILLER[1], "keep_start_goal": True}),
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),
     "handcrafted+no_filler_goal": (*_NO_FILLER, "handcrafted"),
 }

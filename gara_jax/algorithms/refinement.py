@@ -66,6 +66,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
     ``changed [n_seeds]`` (partition grew), ``updated [n_seeds]`` (a split, or a whole ``G_s``
     found reaching) and the time spent (``fit_s``, ``refine_s``, ``host_s``).
     """
+    from gara_jax import boxes
     from gara_jax import partition as part
     from gara_jax import reach
 
@@ -190,9 +191,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
         ok &= live_goals[:, :, None] & live_goals[:, None, :]
         if start_obs is not None:
             # keep_start_goal: a goal holding a start state is never G_s (closed boxes).
-            starts = np.asarray(start_obs)[None, None]
-            holds = ((starts >= host["lo"][:, :, None]) & (starts <= host["hi"][:, :, None])
-                     ).all(-1).any(-1)
+            holds = np.asarray(boxes.contains(host["lo"][:, :, None], host["hi"][:, :, None],
+                                              np.asarray(start_obs)[None, None])).any(-1)
             info["start_skips"] = int((ok & holds[:, :, None]).sum())
             ok &= ~holds[:, :, None]
         info["triggered"] = int(ok.sum())

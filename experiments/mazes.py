@@ -60,6 +60,11 @@ _NO_FILLER = ("the filler box [0,6]x[3,6] (added to the authors' partition to ma
               "over the wall and the strip behind it) is never a target, so the high level "
               "chooses among the authors' goals (non_targets='layout'; changes big_u_maze only)",
               {"non_targets": "layout"})
+# What the three Planning variants (GARA, refinement off, Handcrafted) change.
+_PLANNING = ("the Planning high level (planning=True, the paper's other high level): a "
+             "shortest path over the goal transitions seen to succeed, towards the goal where "
+             "the exit reward was obtained, so a split goal's pieces are chained by the graph "
+             "rather than learned as Q-values", {"planning": True})
 #: Variants for the refinement study, each a method of :data:`METHODS` (its *base*:
 #: ``GaraConfig()`` unless a third entry names another) with what its name says changed
 #: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides[,
@@ -146,6 +151,9 @@ VARIANTS = {
     "gara+no_filler_goal+keep_start_goal": (
         "the filler box never a target and the start's goal never split, so on big_u_maze "
         "only the right-hand region is refined", {**_NO_FILLER[1], "keep_start_goal": True}),
+    "gara+planning": _PLANNING,
+    "gara_no_refinement+planning": (*_PLANNING, "gara_no_refinement"),
+    "handcrafted+planning": (*_PLANNING, "handcrafted"),
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),
     "handcrafted+no_filler_goal": (*_NO_FILLER, "handcrafted"),
 }

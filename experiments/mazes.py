@@ -245,6 +245,80 @@ def paired(a: dict, b: dict, measure: str) -> dict:
     return ci_summary(d)
 
 
+def run_key(method: str, seeds) -> str:
+    """Where a run of ``method`` on ``seeds`` is stored: ``method`` for seeds ``0..n-1``,
+    ``method@seedsA-B`` for another block (``--first-seed``).
+
+    Example:
+        >>> run_key("gara", range(20)), run_key("gara", range(20, 40))
+        ('gara', 'gara@seeds20-39')
+    """
+    seeds = list(seeds)
+    return method if seeds[0] == 0 else f"{method}@seeds{seeds[0]}-{seeds[-1]}"
+
+
+def pooled(methods: dict, method: str, measure: str = "greedy_last10"):
+    """``method``'s per-seed ``measure`` over all its stored seed blocks (the 0-based run and
+    every ``method@seedsA-B``), in seed order: ``(seeds, values)``, or ``None`` if it has no
+    run. Blocks must not overlap (``ValueError``).
+
+    Example:
+        >>> runs = {"gara": {"seeds": 2, "summary": {"per_seed": {"m": [1.0, 0.0]}}},
+        ...         "gara@seeds2-2": {"seeds": 1, "first_seed": 2,
+        ...                           "summary": {"per_seed": {"m": [0.5]}}}}
+        >>> pooled(runs, "gara", "m")
+        ([0, 1, 2], [1.0, 0.0, 0.5])
+    """
+    seeds, values = [], []
+    for key, run in methods.items():
+        if key.split("@")[0] != method:
+            continue
+        first = run.get("first_seed", 0)
+        seeds += range(first, first + run["seeds"])
+        values += list(run["summary"]["per_seed"][measure])
+    if not seeds:
+        return None
+    if len(set(seeds)) != len(seeds):
+        raise ValueError(f"pooled: the seed blocks of {method!r} overlap")
+    order = np.argsort(seeds)
+    return [seeds[i] for i in order], [values[i] for i in order]
+
+
+def pooled_table(runs: dict) -> str:
+    """For each method with more than one seed block (``--first-seed``), its greedy success
+    over the last 10 evaluations pooled over all its seeds, and paired against the
+    refinement-off agent (as in :func:`variant_table`) over the seeds both have run (``""``
+    when no method has a second block)."""
+    from gara_jax.results import ci_summary
+
+    lines = []
+    for maze, methods in runs.items():
+        names = sorted({k.split("@")[0] for k in methods if "@" in k})
+        for name in names:
+            seeds, values = pooled(methods, name)
+            base = variant_base(name)
+            off = None
+            if base == "gara":
+                same = "gara_no_refinement" + name[len("gara"):]
+                off = same if same in methods else "gara_no_refinement"
+            cell, n_pair = "-", 0
+            other = pooled(methods, off) if off else None
+            if other is not None:
+                theirs = dict(zip(*other))
+                both = [(v, theirs[s]) for s, v in zip(seeds, values) if s in theirs]
+                n_pair = len(both)
+                if both:
+                    cell = _fmt(ci_summary(np.subtract(*np.asarray(both, float).T)))
+            lines.append(f"| {maze} | `{name}` | {len(seeds)} | "
+                         f"{_fmt(ci_summary(np.asarray(values, float)))} | "
+                         f"{'`' + off + '`' if off else '-'} | {n_pair} | {cell} |")
+    if not lines:
+        return ""
+    head = ["| maze | method | seeds | greedy, last 10 evals | refinement off | paired seeds "
+            "| − refinement off (paired) |", "|---|---|---:|---:|---|---:|---:|"]
+    return "\n".join(head + lines)
+
+
 def _fmt(s) -> str:
     return "-" if not s or s.get("mean") is None else f"{s['mean']:.2f} ± {s['ci95']:.2f}"
 
@@ -373,6 +447,10 @@ def parse_args(argv=None):
                    f"{','.join(ALL_METHODS)} (default: {','.join(METHODS)}; the gara+ variants "
                    "change one mechanism of GaraConfig(), see VARIANTS)")
     p.add_argument("--seeds", type=int, default=None, help="seeds per run (default 20)")
+    p.add_argument("--first-seed", type=int, default=0,
+                   help="train seeds FIRST..FIRST+SEEDS-1 (default 0); a run from another "
+                        "first seed is stored as METHOD@seedsA-B beside the 0-based run, and "
+                        "the pooled table puts the blocks of a method together")
     p.add_argument("--steps", type=int, default=None,
                    help="steps per seed for every maze (default: each maze's budget)")
     p.add_argument("--out", default="results/mazes", help="output directory")
@@ -395,6 +473,8 @@ def parse_args(argv=None):
     args.seeds = args.seeds if args.seeds is not None else (QUICK["seeds"] if args.quick else 20)
     if args.seeds < 1 or (args.steps is not None and args.steps < 1):
         p.error("--seeds and --steps must be >= 1")
+    if args.first_seed < 0:
+        p.error(f"--first-seed: must be >= 0, got {args.first_seed}")
     return args
 
 
@@ -431,8 +511,10 @@ def main(argv=None) -> int:
     path = out / "mazes.json"
     runs = json.loads(path.read_text())["runs"] if path.exists() else {}
     version = code_version()
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     for maze, method, steps in plan:
-        old = runs.get(maze, {}).get(method)
+        key = run_key(method, seeds)
+        old = runs.get(maze, {}).get(key)
         config = method_config(method, maze, spe, evals)
         same = json.loads(json.dumps(dataclasses.asdict(config)))  # as stored (tuples: lists)
         if (old and not args.rerun and old["seeds"] == args.seeds and old["steps"] == steps
@@ -442,7 +524,7 @@ def main(argv=None) -> int:
         if not args.no_progress:
             from tqdm.auto import tqdm
 
-            bar = tqdm(desc=f"{maze}/{method}", unit="epoch", leave=False, file=sys.stderr)
+            bar = tqdm(desc=f"{maze}/{key}", unit="epoch", leave=False, file=sys.stderr)
 
         def progress(done, total, metrics, bar=bar):
             if bar is not None:
@@ -452,7 +534,7 @@ def main(argv=None) -> int:
                 bar.refresh()
 
         t0 = time.perf_counter()
-        result = train_many(config, args.seeds, steps, progress=progress)
+        result = train_many(config, seeds, steps, progress=progress)
         if bar is not None:
             bar.close()
         summary = summarize(result, steps)
@@ -460,17 +542,23 @@ def main(argv=None) -> int:
         if result.algorithm.startswith("gara"):
             partitions = [[np.asarray(b).round(6).tolist() for b in p.boxes()]
                           for p in final_partitions(result)]
-        runs.setdefault(maze, {})[method] = dict(
-            seeds=args.seeds, steps=steps, commit=version, config=dataclasses.asdict(config),
-            summary=summary, final_partitions=partitions)
+        record = dict(seeds=args.seeds, steps=steps, commit=version,
+                      config=dataclasses.asdict(config), summary=summary,
+                      final_partitions=partitions)
+        if args.first_seed:
+            record["first_seed"] = args.first_seed
+        runs.setdefault(maze, {})[key] = record
         write_json(path, {"runs": runs})
         s = summary
-        print(f"{maze}/{method}: training (last 30k) {_fmt(s['train_last30k'])}, greedy "
+        print(f"{maze}/{key}: training (last 30k) {_fmt(s['train_last30k'])}, greedy "
               f"(last 10) {_fmt(s['greedy_last10'])}, goals {s['goals_end']:.1f} "
               f"({time.perf_counter() - t0:.0f} s)", flush=True)
     chosen = {m: {k: runs[m][k] for k in args.methods if k in runs.get(m, {})}
               for m in args.mazes if m in runs}
-    text = "\n\n".join(t for t in (table(chosen), variant_table(chosen)) if t)
+    blocks = {m: {k: r for k, r in runs[m].items() if k.split("@")[0] in args.methods}
+              for m in args.mazes if m in runs}
+    text = "\n\n".join(t for t in (table(chosen), variant_table(chosen), pooled_table(blocks))
+                        if t)
     (out / "table.md").write_text(text + "\n")
     plot(chosen, out)
     print(text)

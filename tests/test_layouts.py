@@ -246,6 +246,38 @@ def test_mazes_study_quick_run_writes_its_files(tmp_path, capsys):
     before = (tmp_path / "mazes.json").stat().st_mtime_ns
     assert mazes.main(argv) == 0
     assert (tmp_path / "mazes.json").stat().st_mtime_ns == before
+    # Another block of seeds is stored beside the first and pooled with it.
+    argv[argv.index("gara,gara_no_refinement")] = "gara_no_refinement"
+    assert mazes.main(argv + ["--first-seed", "5"]) == 0
+    runs = json.loads((tmp_path / "mazes.json").read_text())["runs"]["four_rooms"]
+    assert runs["gara_no_refinement@seeds5-6"]["first_seed"] == 5
+    assert mazes.pooled(runs, "gara_no_refinement")[0] == [0, 1, 5, 6]
+    assert "| four_rooms | `gara_no_refinement` | 4 |" in (tmp_path / "table.md").read_text()
+
+
+def test_pooled_table_pairs_over_the_seeds_both_methods_have():
+    from experiments import mazes
+
+    def run(greedy, first=0):
+        ci = {"mean": float(np.mean(greedy)), "ci95": 0.0, "n": len(greedy)}
+        return {"seeds": len(greedy), "first_seed": first,
+                "summary": {"per_seed": {"greedy_last10": greedy}, "greedy_last10": ci}}
+
+    runs = {"big_u_maze": {"gara": run([1.0, 0.0]), "gara@seeds2-3": run([1.0, 0.5], 2),
+                           "gara_no_refinement": run([0.0, 0.0]),
+                           "gara_no_refinement@seeds3-3": run([0.5], 3),
+                           "handcrafted": run([1.0, 1.0])}}
+    rows = mazes.pooled_table(runs).splitlines()
+    # gara over seeds 0-3 (0.625, sd 0.48, t(0.975, 3) = 3.18); paired with refinement off over seeds 0, 1, 3: (1, 0, 0).
+    assert len(rows) == 4 and rows[2].startswith(
+        "| big_u_maze | `gara` | 4 | 0.62 ± 0.76 | `gara_no_refinement` | 3 | 0.33 ± 1.43 |")
+    assert "| `gara_no_refinement` | 3 | 0.17 ± 0.72 | - | 0 | - |" in rows[3]
+    assert mazes.pooled_table({"big_u_maze": {"gara": run([1.0])}}) == ""
+    runs["big_u_maze"]["gara@seeds1-1"] = run([0.0], 1)
+    with pytest.raises(ValueError, match="overlap"):
+        mazes.pooled(runs["big_u_maze"], "gara")
+    with pytest.raises(SystemExit):
+        mazes.parse_args(["--first-seed", "-1"])
 
 
 def test_mazes_study_rejects_bad_names():

@@ -103,6 +103,16 @@ VARIANTS = {
         "fine cuts, and pair counts kept per goal index, never recomputed from the memory, so "
         "a pair's count survives a split of the other goal (pair_counts='cumulative', the "
         "authors' counts)", {"pair_counts": "cumulative", "min_volume_ratio": 0.05}),
+    # The three leads above measured again on today's default (two cuts, x and y).
+    "gara+target_margin": ("the coverage measured 10% inside G_d on every side, so a "
+                           "prediction on a wall face of G_d does not count as entering it "
+                           "(target_margin=0.1)", {"target_margin": 0.1}),
+    "gara+cumulative_counts": ("pair counts kept per goal index, never recomputed from the "
+                               "memory, so a pair's count survives a split of the other goal "
+                               "(pair_counts='cumulative', the authors' counts)",
+                               {"pair_counts": "cumulative"}),
+    "gara+per_job_model": ("a fresh forward model per analysis, fitted until its loss is "
+                           "stable (forward_model='per_job')", {"forward_model": "per_job"}),
     "gara+exit_analysis": ("also analyse the goal holding the exit against a box around the "
                            "exit (exit_analysis=True: the one hop the partition does not "
                            "represent)", {"exit_analysis": True}),

@@ -60,7 +60,7 @@ _NO_FILLER = ("the filler box [0,6]x[3,6] (added to the authors' partition to ma
               "over the wall and the strip behind it) is never a target, so the high level "
               "chooses among the authors' goals (non_targets='layout'; changes big_u_maze only)",
               {"non_targets": "layout"})
-# What the three Planning variants (GARA, refinement off, Handcrafted) change.
+# What the two Planning variants (GARA, refinement off) change.
 _PLANNING = ("the Planning high level (planning=True, the paper's other high level): a "
              "shortest path over the goal transitions seen to succeed, towards the goal where "
              "the exit reward was obtained, so a split goal's pieces are chained by the graph "
@@ -163,7 +163,6 @@ VARIANTS = {
         "only the right-hand region is refined", {**_NO_FILLER[1], "keep_start_goal": True}),
     "gara+planning": _PLANNING,
     "gara_no_refinement+planning": (*_PLANNING, "gara_no_refinement"),
-    "handcrafted+planning": (*_PLANNING, "handcrafted"),
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),
     "handcrafted+no_filler_goal": (*_NO_FILLER, "handcrafted"),
 }

@@ -65,6 +65,11 @@ _PLANNING = ("the Planning high level (planning=True, the paper's other high lev
              "shortest path over the goal transitions seen to succeed, towards the goal where "
              "the exit reward was obtained, so a split goal's pieces are chained by the graph "
              "rather than learned as Q-values", {"planning": True})
+# What the two self-target variants (GARA, refinement off) change.
+_SELF_TARGET = ("the Q-learning high level chooses the goal the agent is in as its target only "
+                "where that goal holds the exit state (self_target='exit_goal'): most greedy "
+                "failures on big_u_maze are loops of options towards the goal the agent is in, "
+                "for GARA and refinement off alike", {"self_target": "exit_goal"})
 #: Variants for the refinement study, each a method of :data:`METHODS` (its *base*:
 #: ``GaraConfig()`` unless a third entry names another) with what its name says changed
 #: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides[,
@@ -161,6 +166,8 @@ VARIANTS = {
     "gara+no_filler_goal+keep_start_goal": (
         "the filler box never a target and the start's goal never split, so on big_u_maze "
         "only the right-hand region is refined", {**_NO_FILLER[1], "keep_start_goal": True}),
+    "gara+self_target_exit": _SELF_TARGET,
+    "gara_no_refinement+self_target_exit": (*_SELF_TARGET, "gara_no_refinement"),
     "gara+planning": _PLANNING,
     "gara_no_refinement+planning": (*_PLANNING, "gara_no_refinement"),
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),

@@ -261,6 +261,23 @@ def paired(a: dict, b: dict, measure: str) -> dict:
     return ci_summary(d)
 
 
+def refinement_off(method: str, methods: dict) -> str | None:
+    """The refinement-off agent that ``method`` is compared with: for a ``gara`` variant the
+    one with the same change (``gara_no_refinement+CHANGE``) where ``methods`` holds it, else
+    ``gara_no_refinement``; ``None`` for a method of another base.
+
+    Example:
+        >>> refinement_off("gara+planning", {"gara_no_refinement+planning": {}})
+        'gara_no_refinement+planning'
+        >>> refinement_off("gara+one_cut", {}), refinement_off("handcrafted", {})
+        ('gara_no_refinement', None)
+    """
+    if variant_base(method) != "gara":
+        return None
+    same = "gara_no_refinement" + method[len("gara"):]
+    return same if same in methods else "gara_no_refinement"
+
+
 def run_key(method: str, seeds) -> str:
     """Where a run of ``method`` on ``seeds`` is stored: ``method`` for seeds ``0..n-1``,
     ``method@seedsA-B`` for another block (``--first-seed``).
@@ -312,11 +329,7 @@ def pooled_table(runs: dict) -> str:
         names = sorted({k.split("@")[0] for k in methods if "@" in k})
         for name in names:
             seeds, values = pooled(methods, name)
-            base = variant_base(name)
-            off = None
-            if base == "gara":
-                same = "gara_no_refinement" + name[len("gara"):]
-                off = same if same in methods else "gara_no_refinement"
+            off = refinement_off(name, methods)
             cell, n_pair = "-", 0
             other = pooled(methods, off) if off else None
             if other is not None:
@@ -372,10 +385,7 @@ def variant_table(runs: dict) -> str:
         for name in (v for v in methods if v in VARIANTS):
             s = methods[name]["summary"]
             base = variant_base(name)
-            off = None
-            if base == "gara":
-                same = "gara_no_refinement" + name[len("gara"):]
-                off = same if same in methods else "gara_no_refinement"
+            off = refinement_off(name, methods)
             vs = [_fmt(paired(s, methods[other]["summary"], "greedy_last10"))
                   if other in methods else "-" for other in (off, base)]
             lines.append(f"| {maze} | `{name}` | {_fmt(s['train_last30k'])} | "

@@ -318,10 +318,11 @@ def pooled(methods: dict, method: str, measure: str = "greedy_last10"):
 
 
 def pooled_table(runs: dict) -> str:
-    """For each method with more than one seed block (``--first-seed``), its greedy success
-    over the last 10 evaluations pooled over all its seeds, and paired against the
-    refinement-off agent (as in :func:`variant_table`) over the seeds both have run (``""``
-    when no method has a second block)."""
+    """For each method with more than one seed block (``--first-seed``), its training success
+    over the last 30,000 steps and greedy success over the last 10 evaluations pooled over all
+    its seeds, and the greedy success paired against the refinement-off agent (as in
+    :func:`variant_table`) over the seeds both have run (``""`` when no method has a second
+    block)."""
     from gara_jax.results import ci_summary
 
     lines = []
@@ -329,6 +330,7 @@ def pooled_table(runs: dict) -> str:
         names = sorted({k.split("@")[0] for k in methods if "@" in k})
         for name in names:
             seeds, values = pooled(methods, name)
+            train = pooled(methods, name, "train_last30k")[1]
             off = refinement_off(name, methods)
             cell, n_pair = "-", 0
             other = pooled(methods, off) if off else None
@@ -339,12 +341,14 @@ def pooled_table(runs: dict) -> str:
                 if both:
                     cell = _fmt(ci_summary(np.subtract(*np.asarray(both, float).T)))
             lines.append(f"| {maze} | `{name}` | {len(seeds)} | "
+                         f"{_fmt(ci_summary(np.asarray(train, float)))} | "
                          f"{_fmt(ci_summary(np.asarray(values, float)))} | "
                          f"{'`' + off + '`' if off else '-'} | {n_pair} | {cell} |")
     if not lines:
         return ""
-    head = ["| maze | method | seeds | greedy, last 10 evals | refinement off | paired seeds "
-            "| − refinement off (paired) |", "|---|---|---:|---:|---|---:|---:|"]
+    head = ["| maze | method | seeds | training, last 30k steps | greedy, last 10 evals "
+            "| refinement off | paired seeds | − refinement off (paired) |",
+            "|---|---|---:|---:|---:|---|---:|---:|"]
     return "\n".join(head + lines)
 
 

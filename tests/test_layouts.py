@@ -260,18 +260,22 @@ def test_pooled_table_pairs_over_the_seeds_both_methods_have():
 
     def run(greedy, first=0):
         ci = {"mean": float(np.mean(greedy)), "ci95": 0.0, "n": len(greedy)}
+        train = [1.0] * len(greedy)  # training success 1 in every seed: 1.00 ± 0.00 pooled
         return {"seeds": len(greedy), "first_seed": first,
-                "summary": {"per_seed": {"greedy_last10": greedy}, "greedy_last10": ci}}
+                "summary": {"per_seed": {"greedy_last10": greedy, "train_last30k": train},
+                            "greedy_last10": ci}}
 
     runs = {"big_u_maze": {"gara": run([1.0, 0.0]), "gara@seeds2-3": run([1.0, 0.5], 2),
                            "gara_no_refinement": run([0.0, 0.0]),
                            "gara_no_refinement@seeds3-3": run([0.5], 3),
                            "handcrafted": run([1.0, 1.0])}}
     rows = mazes.pooled_table(runs).splitlines()
-    # gara over seeds 0-3 (0.625, sd 0.48, t(0.975, 3) = 3.18); paired with refinement off over seeds 0, 1, 3: (1, 0, 0).
+    # gara's greedy over seeds 0-3: 0.625, sd 0.48, t(0.975, 3) = 3.18; paired with
+    # refinement off over seeds 0, 1, 3: (1, 0, 0).
     assert len(rows) == 4 and rows[2].startswith(
-        "| big_u_maze | `gara` | 4 | 0.62 ± 0.76 | `gara_no_refinement` | 3 | 0.33 ± 1.43 |")
-    assert "| `gara_no_refinement` | 3 | 0.17 ± 0.72 | - | 0 | - |" in rows[3]
+        "| big_u_maze | `gara` | 4 | 1.00 ± 0.00 | 0.62 ± 0.76 | `gara_no_refinement` | 3 "
+        "| 0.33 ± 1.43 |")
+    assert "| `gara_no_refinement` | 3 | 1.00 ± 0.00 | 0.17 ± 0.72 | - | 0 | - |" in rows[3]
     assert mazes.pooled_table({"big_u_maze": {"gara": run([1.0])}}) == ""
     runs["big_u_maze"]["gara@seeds1-1"] = run([0.0], 1)
     with pytest.raises(ValueError, match="overlap"):

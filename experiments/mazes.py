@@ -60,6 +60,13 @@ _NO_FILLER = ("the filler box [0,6]x[3,6] (added to the authors' partition to ma
               "over the wall and the strip behind it) is never a target, so the high level "
               "chooses among the authors' goals (non_targets='layout'; changes big_u_maze only)",
               {"non_targets": "layout"})
+# The authors' final collision rules (SPEC.md 1) for every method: under the reference rules
+# big_u_maze has two absorbing corners, (4, 3) and (4.5, 3), where every action leaves the
+# state unchanged until the episode times out (envs.absorbing_states); the final rules let an
+# agent leave a face it only touches.
+_FINAL_RULES = ("the authors' final collision rules (collision='final', SPEC.md 1), under which "
+                "big_u_maze's corners (4, 3) and (4.5, 3) are no longer absorbing; the same "
+                "for every method", {"collision": "final"})
 # What the two Planning variants (GARA, refinement off) change.
 _PLANNING = ("the Planning high level (planning=True, the paper's other high level): a "
              "shortest path over the goal transitions seen to succeed, towards the goal where "
@@ -172,6 +179,9 @@ VARIANTS = {
     "gara_no_refinement+planning": (*_PLANNING, "gara_no_refinement"),
     "gara_no_refinement+no_filler_goal": (*_NO_FILLER, "gara_no_refinement"),
     "handcrafted+no_filler_goal": (*_NO_FILLER, "handcrafted"),
+    "gara+final_rules": _FINAL_RULES,
+    "gara_no_refinement+final_rules": (*_FINAL_RULES, "gara_no_refinement"),
+    "handcrafted+final_rules": (*_FINAL_RULES, "handcrafted"),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

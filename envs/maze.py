@@ -588,6 +588,58 @@ class Maze:
 
 
 # ----------------------------------------------------------------------------------------------
+# Absorbing states
+# ----------------------------------------------------------------------------------------------
+
+
+def absorbing_states(env: Maze, params: EnvParams, resolution: float = 0.25) -> np.ndarray:
+    """Positions outside every wall where an agent at rest can never move again: ``[M, 2]``.
+
+    A position qualifies when every action taken at rest there returns the agent to that
+    position at rest, so that by induction it stays there until the episode times out. Tried:
+    a grid of step ``resolution`` over ``[0, n]^2`` joined with every wall's edge coordinates
+    (where such corners lie), leaving out the points strictly inside a wall. Under the
+    reference rules (SPEC.md section 1) an agent stopped on a face while strictly inside the
+    wall's range on the other axis cannot move away from it, so a concave corner between two
+    walls is absorbing; under the final rules it is not. Sorted by ``(x, y)``.
+
+    Example:
+        >>> import envs
+        >>> absorbing_states(*envs.make("big_u_maze")).tolist()
+        [[4.0, 3.0], [4.5, 3.0]]
+        >>> absorbing_states(*envs.make("big_u_maze", collision="final")).shape
+        (0, 2)
+    """
+    if not isinstance(env, Maze):
+        raise ValueError(f"env: absorbing_states takes a kinematic Maze, got {type(env).__name__}")
+    if not resolution > 0:
+        raise ValueError(f"resolution: must be positive, got {resolution!r}")
+    n = float(params.n)
+    walls = np.asarray(params.walls, np.float64).reshape(-1, 4)
+    grid = np.arange(0.0, n + resolution / 2, resolution)
+    xs = np.unique(np.clip(np.concatenate([grid, walls[:, 0], walls[:, 1]]), 0.0, n))
+    ys = np.unique(np.clip(np.concatenate([grid, walls[:, 2], walls[:, 3]]), 0.0, n))
+    x, y = (a.ravel() for a in np.meshgrid(xs, ys, indexing="ij"))
+    inside = np.any((x[:, None] > walls[:, 0]) & (x[:, None] < walls[:, 1])
+                    & (y[:, None] > walls[:, 2]) & (y[:, None] < walls[:, 3]), axis=1)
+    x, y = x[~inside], y[~inside]
+    dtype = _default_float()
+    zero = jnp.zeros(x.shape, dtype)
+    rest = EnvState(x=jnp.asarray(x, dtype), y=jnp.asarray(y, dtype), vx=zero, vy=zero,
+                    time=jnp.zeros(x.shape, jnp.int32))
+
+    @jax.jit
+    def stays(state):
+        def one(action):
+            nxt = env._transition(state, jnp.full(x.shape, action), params)[0]
+            return ((nxt.x == state.x) & (nxt.y == state.y) & (nxt.vx == 0) & (nxt.vy == 0))
+        return jnp.all(jnp.stack([one(a) for a in range(NUM_ACTIONS)]), axis=0)
+
+    keep = np.asarray(stays(rest))
+    return np.stack([x[keep], y[keep]], axis=1).reshape(-1, 2)
+
+
+# ----------------------------------------------------------------------------------------------
 # Random-policy rollouts (sanity figures, the demo, the benchmark)
 # ----------------------------------------------------------------------------------------------
 

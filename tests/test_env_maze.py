@@ -438,3 +438,31 @@ def test_env_state_is_a_pytree():
     _, batch = jax.vmap(Maze().reset, in_axes=(0, None))(jax.random.split(KEY, 3), EnvParams())
     assert all(leaf.shape == (3,) for leaf in jax.tree.leaves(batch))
     assert batch.pos.shape == batch.vel.shape == (3, 2)
+
+
+def test_absorbing_states_are_the_concave_corners_under_the_reference_rules():
+    # big_u_maze: where the wall x in [4, 4.5] meets the wall y in [3, 4], on both sides.
+    # No other layout has one; the final rules free both.
+    for name in envs.LAYOUTS:
+        found = envs.absorbing_states(*envs.make(name)).tolist()
+        assert found == ([[4.0, 3.0], [4.5, 3.0]] if name == "big_u_maze" else []), name
+    assert envs.absorbing_states(*envs.make("big_u_maze", collision="final")).size == 0
+    # Held there, every action for 20 steps leaves the agent where it is.
+    env, params = envs.make("big_u_maze")
+    step = jax.jit(env.step)
+    for corner in ((4.0, 3.0), (4.5, 3.0)):
+        for action in (LEFT, RIGHT, UP, DOWN):
+            state = state_from_vector(jnp.array([*corner, 0.0, 0.0]))
+            for _ in range(20):
+                obs, state, *_ = step(KEY, state, action, params)
+            assert obs.tolist() == [*corner, 0.0, 0.0]
+    # Two overlapping walls of one's own (a T): both inner corners, at a resolution that
+    # misses them.
+    params = EnvParams.create(n=3.0, walls=[[1.3, 1.7, 0.0, 2.4], [0.0, 3.0, 2.2, 2.6]],
+                              start=[0, 0], exit=[3, 0])
+    assert envs.absorbing_states(Maze(), params, resolution=0.5).tolist() == [
+        [pytest.approx(1.3), pytest.approx(2.2)], [pytest.approx(1.7), pytest.approx(2.2)]]
+    with pytest.raises(ValueError, match="resolution"):
+        envs.absorbing_states(Maze(), params, resolution=0)
+    with pytest.raises(ValueError, match="env"):
+        envs.absorbing_states(envs.make("point_u_maze")[0], params)

@@ -81,7 +81,10 @@ def rollout(maze):
 
 @pytest.fixture(scope="module")
 def single_step(maze):
-    return jax.jit(maze[0].step)
+    # The action as a Python int (weakly typed), whatever the caller passes, as the module's
+    # docstring example passes it: a jnp int32 scalar is another signature, another 10-s compile.
+    jitted = jax.jit(maze[0].step)
+    return lambda key, state, action, params: jitted(key, state, int(action), params)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -600,8 +600,9 @@ def absorbing_states(env: Maze, params: EnvParams, resolution: float = 0.25) -> 
     a grid of step ``resolution`` over ``[0, n]^2`` joined with every wall's edge coordinates
     (where such corners lie), leaving out the points strictly inside a wall. Under the
     reference rules (SPEC.md section 1) an agent stopped on a face while strictly inside the
-    wall's range on the other axis cannot move away from it, so a concave corner between two
-    walls is absorbing; under the final rules it is not. Sorted by ``(x, y)``.
+    wall's range on the other axis cannot move away from it, so where two walls overlap, the
+    inner corners of the overlap (each strictly inside the other wall's range) are absorbing;
+    under the final rules they are not. Sorted by ``(x, y)``.
 
     Example:
         >>> import envs

@@ -637,7 +637,7 @@ def absorbing_states(env: Maze, params: EnvParams, resolution: float = 0.25) -> 
         return jnp.all(jnp.stack([one(a) for a in range(NUM_ACTIONS)]), axis=0)
 
     keep = np.asarray(stays(rest))
-    return np.stack([x[keep], y[keep]], axis=1).reshape(-1, 2)
+    return np.stack([x[keep], y[keep]], axis=1)
 
 
 # ----------------------------------------------------------------------------------------------

@@ -440,7 +440,7 @@ def test_env_state_is_a_pytree():
     assert batch.pos.shape == batch.vel.shape == (3, 2)
 
 
-def test_absorbing_states_are_the_concave_corners_under_the_reference_rules():
+def test_absorbing_states_are_the_inner_corners_of_overlapping_walls():
     # big_u_maze: where the wall x in [4, 4.5] meets the wall y in [3, 4], on both sides.
     # No other layout has one; the final rules free both.
     for name in envs.LAYOUTS:

@@ -540,7 +540,28 @@ def main(argv=None) -> int:
         write_json(out, dict(variants=on_disk))
         print(f"{name}: {summary} ({time.perf_counter() - t0:.0f} s)", flush=True)
     print(table({n: rows[n] for n in names if n in rows}))
+    against = authors_rows({n: rows[n] for n in names if n in rows})
+    if against:
+        from experiments.u_maze import authors_table
+
+        print("\n" + authors_table(against))
     return 0
+
+
+def authors_rows(rows: dict) -> dict:
+    """The results preset's variants (``results...`` rows on the U-maze) against the authors'
+    own runs of the same high level (``experiments.u_maze.against_authors``)."""
+    from experiments.u_maze import against_authors
+
+    out = {}
+    for name, r in rows.items():
+        if not name.startswith("results") or r["config"].get("env") != "u_maze":
+            continue
+        method = ("gara_reference_results_planning" if r["config"].get("planning")
+                  else "gara_reference_results")
+        ps = r["summary"]["per_seed"]
+        out[name] = against_authors(method, ps["train_ep300_400"], ps["goals_end"])
+    return out
 
 
 if __name__ == "__main__":

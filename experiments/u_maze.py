@@ -77,6 +77,15 @@ GARA_METHODS = ("gara", "gara_planning", "gara_reference", "gara_reference_resul
 LAST_STEPS = 30_000  # the final training success counts the episodes ending in these steps
 EPISODE_WINDOW = (300, 400)  # the last quarter of the reference's 400-episode run
 CURVE_EPISODES, CURVE_WINDOW = 400, 30  # the paper's curve: 400 episodes, 30-episode average
+# The authors' own runs (SPEC.md 3.9.5: U-maze, 400 training episodes each, made by the results
+# version): training success over episodes 300-399 and goals in the final partition, run by run.
+# Their Planning run 4 is a copy of run 3 and is left out.
+AUTHORS_RUNS = {
+    "gara_reference_results": {"train_success_ep300_400": (0.80, 0.79, 0.75, 0.93, 0.05),
+                               "final_n_goals": (10, 9, 7, 7, 30)},
+    "gara_reference_results_planning": {"train_success_ep300_400": (0.99, 0.72, 0.69, 0.71),
+                                        "final_n_goals": (22, 9, 7, 7)},
+}
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
 #: Environments ``--env`` takes: the paper's U-maze, its brax twin, then SPEC.md's other layouts
 #: (their Handcrafted and initial GARA partitions: SPEC.md 2.1).
@@ -487,6 +496,31 @@ def summarize_method(record) -> dict:
     return summary
 
 
+def against_authors(method: str, success_ep300_400, final_n_goals) -> dict:
+    """Our seeds against the authors' own runs of ``method`` (:data:`AUTHORS_RUNS`): per
+    measure the authors' values, both means and ours minus theirs with its 95% Welch
+    interval (:func:`gara_jax.results.welch_ci95`; two independent samples, so the interval
+    is as wide as their 4-5 runs make it).
+
+    Example:
+        >>> d = against_authors("gara_reference_results", [0.6, 0.7, 0.65], [7, 9, 8])
+        >>> round(d["train_success_ep300_400"]["mean"], 3), d["final_n_goals"]["authors_mean"]
+        (-0.014, 12.6)
+    """
+    from gara_jax.results import welch_ci95
+
+    ours = {"train_success_ep300_400": success_ep300_400, "final_n_goals": final_n_goals}
+    out = {"source": "SPEC.md 3.9.5"}
+    for measure, theirs in AUTHORS_RUNS[method].items():
+        mine = np.asarray(ours[measure], dtype=np.float64)
+        mine = mine[~np.isnan(mine)]  # seeds without episodes 300-399 (a short run)
+        diff = (welch_ci95(mine, theirs) if mine.size else
+                {"mean": None, "ci95": None, "df": None, "n": [0, len(theirs)]})
+        out[measure] = {"authors": list(theirs), "authors_mean": float(np.mean(theirs)),
+                        "ours_mean": float(mine.mean()) if mine.size else None, **diff}
+    return out
+
+
 def partition_seed(record) -> tuple[int, str]:
     """The seed (row index) drawn in the partition figure, and the rule, in words.
 
@@ -531,6 +565,10 @@ def write_outputs(out: Path, methods, records, run_cfg, seeds) -> dict:
     for m in methods:
         metrics, episodes = _as_array_metrics(records[m]), _episodes(records[m])
         summary[m] = summarize_method(records[m])
+        if m in AUTHORS_RUNS and run_cfg["env"] == "u_maze":
+            summary[m]["against_authors"] = against_authors(
+                m, results.per_seed_episode_success(episodes, *EPISODE_WINDOW),
+                metrics["n_goals"][:, -1])
         rows.extend(results.metrics_rows(m, metrics, seeds))
         episode_rows.extend(results.episode_rows(m, episodes, seeds))
         steps = metrics["env_steps"][0]
@@ -651,6 +689,28 @@ def print_table(summary) -> str:
                      f" | {fmt(w['mean'], w['ci95'])} | "
                      f"{fmt(s['final_success_mean'], s['final_success_ci95'])} | "
                      f"{s['final_n_goals_mean']:.1f} | {s['wall_time_s']:.0f} |")
+    rows = {m: s["against_authors"] for m, s in summary.items() if "against_authors" in s}
+    if rows:
+        lines += ["", authors_table(rows)]
+    return "\n".join(lines)
+
+
+def authors_table(rows) -> str:
+    """``{name: against_authors(...)}`` as a markdown table: ours, the authors' runs, and
+    ours minus theirs with its 95% Welch interval, for the success and the goals."""
+    def cell(d):
+        theirs = f"{d['authors_mean']:.2f} ({', '.join(f'{v:g}' for v in d['authors'])})"
+        if d["mean"] is None:
+            return f"- | {theirs} | -"
+        ci = "-" if d["ci95"] is None else f"{d['ci95']:.2f}"
+        return f"{d['ours_mean']:.2f} | {theirs} | {d['mean']:+.2f} ± {ci}"
+
+    lines = ["| against the authors' runs (SPEC.md 3.9.5) | training, ep. 300-399: ours "
+             "| authors | ours − authors (Welch) | goals at the end: ours | authors "
+             "| ours − authors (Welch) |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for name, d in rows.items():
+        lines.append(f"| {name} | {cell(d['train_success_ep300_400'])} | "
+                     f"{cell(d['final_n_goals'])} |")
     return "\n".join(lines)
 
 

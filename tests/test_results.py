@@ -2,6 +2,8 @@ import os
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from gara_jax import results
 
@@ -12,6 +14,57 @@ def test_mean_ci95_matches_student_t_by_hand():
     np.testing.assert_allclose(mean, [0.5, 1.0])
     sd = np.sqrt(((0.2 - 0.5) ** 2 + (0.4 - 0.5) ** 2 + (0.9 - 0.5) ** 2) / 2)
     np.testing.assert_allclose(half, [4.303 * sd / np.sqrt(3), 0.0])
+
+
+@settings(max_examples=30, deadline=None)
+@given(a=st.lists(st.integers(0, 100).map(lambda v: v / 100), min_size=2, max_size=20),
+       b=st.lists(st.integers(0, 100).map(lambda v: v / 100), min_size=2, max_size=6))
+def test_welch_ci95_matches_scipy_and_is_antisymmetric(a, b):
+    from scipy import stats
+
+    d = results.welch_ci95(a, b)
+    assert d["mean"] == pytest.approx(np.mean(a) - np.mean(b), abs=1e-12)
+    assert d["n"] == [len(a), len(b)]
+    back = results.welch_ci95(b, a)
+    assert back["mean"] == pytest.approx(-d["mean"], abs=1e-12)
+    assert back["ci95"] == d["ci95"] and back["df"] == d["df"]
+    if d["ci95"] is None:  # no spread in either sample
+        assert np.var(a) + np.var(b) < 1e-20
+        return
+    if np.var(a) + np.var(b) < 1e-9:  # (nearly) constant samples: scipy loses precision
+        return
+    ci = stats.ttest_ind(a, b, equal_var=False).confidence_interval(0.95)
+    assert d["mean"] - d["ci95"] == pytest.approx(ci.low, rel=1e-6, abs=1e-9)
+    assert d["mean"] + d["ci95"] == pytest.approx(ci.high, rel=1e-6, abs=1e-9)
+
+
+def test_welch_ci95_small_or_empty_samples():
+    one = results.welch_ci95([0.5], [0.1, 0.3])
+    assert one["mean"] == pytest.approx(0.3) and one["ci95"] is None
+    assert results.welch_ci95([0.5, float("nan"), 0.7], [0.2, 0.4])["n"] == [2, 2]
+    with pytest.raises(ValueError, match="welch_ci95"):
+        results.welch_ci95([], [0.1, 0.2])
+
+
+def test_against_authors_uses_their_runs_of_the_high_level():
+    from experiments.u_maze import AUTHORS_RUNS, against_authors, authors_table
+
+    q = against_authors("gara_reference_results", [0.66] * 20, [12] * 20)
+    assert q["train_success_ep300_400"]["authors_mean"] == pytest.approx(0.664)
+    assert q["final_n_goals"]["authors"] == [10, 9, 7, 7, 30]
+    # Our seeds have no spread, so the interval is the authors' runs' own, t with n - 1 df.
+    sd = np.std(AUTHORS_RUNS["gara_reference_results"]["train_success_ep300_400"], ddof=1)
+    assert q["train_success_ep300_400"]["ci95"] == pytest.approx(2.776 * sd / np.sqrt(5),
+                                                                 rel=1e-3)
+    p = against_authors("gara_reference_results_planning", [0.68, 0.7], [9, 10])
+    assert p["train_success_ep300_400"]["n"] == [2, 4]  # their run 4 is a copy: left out
+    assert p["train_success_ep300_400"]["mean"] == pytest.approx(0.69 - 0.7775)
+    # A run too short for episodes 300-399: the success is not compared, the goals are.
+    short = against_authors("gara_reference_results", [float("nan")] * 2, [2, 3])
+    assert short["train_success_ep300_400"]["mean"] is None
+    assert short["final_n_goals"]["n"] == [2, 5]
+    assert "| short | - | 0.66 (0.8, 0.79, 0.75, 0.93, 0.05) | - |" in authors_table(
+        {"short": short})
 
 
 def test_steps_to_uses_seed_mean_and_none_when_never():

@@ -23,7 +23,10 @@ HIRO's) and ``hiro_paper_full_range_unclipped_low`` (the last two together). Wri
   ``final_success_ci95``), the paper's training-episode success over the episodes that ended
   in the last 30,000 steps (``final_train_success_mean`` / ``final_train_success_ci95``) and
   over episodes 300-399 (``train_success_ep300_400``: mean, ci95, seeds with such episodes),
-  steps to 50% / 80% greedy success, goals, wall time;
+  steps to 50% / 80% greedy success, goals, wall time; for ``gara_reference_results`` and
+  ``gara_reference_results_planning`` on the U-maze also ``against_authors``: our seeds
+  against the authors' own runs (SPEC.md 3.9.5) in success over episodes 300-399 and final
+  goals, ours minus theirs with a 95% Welch interval (:func:`against_authors`);
 - ``success_curve.png``: (a) training-episode success by episode index (first 400 episodes,
   30-episode moving average), (b) the same by environment steps, (c) greedy success by
   steps; seed means with 95% confidence bands;

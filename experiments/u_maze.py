@@ -479,9 +479,10 @@ def _episodes(record) -> dict:
             for f, per_seed in record["episodes"].items()}
 
 
-def summarize_method(record) -> dict:
+def summarize_method(record, method: str | None = None, env: str = "u_maze") -> dict:
     """``summary.json``'s entry for one method: the greedy fields of
-    :func:`gara_jax.results.summarize` and the paper's training-episode success."""
+    :func:`gara_jax.results.summarize`, the paper's training-episode success, and for a
+    method of :data:`AUTHORS_RUNS` on the U-maze ``against_authors``."""
     from gara_jax import results
 
     metrics, episodes = _as_array_metrics(record), _episodes(record)
@@ -496,6 +497,10 @@ def summarize_method(record) -> dict:
         "train_success_ep300_400": window,
         "episodes_mean": float(np.mean([len(s) for s in episodes["success"]])),
     })
+    if method in AUTHORS_RUNS and env == "u_maze":
+        summary["against_authors"] = against_authors(
+            method, results.per_seed_episode_success(episodes, *EPISODE_WINDOW),
+            metrics["n_goals"][:, -1])
     return summary
 
 
@@ -567,11 +572,7 @@ def write_outputs(out: Path, methods, records, run_cfg, seeds) -> dict:
     by_episode, by_step, greedy = {}, {}, {}
     for m in methods:
         metrics, episodes = _as_array_metrics(records[m]), _episodes(records[m])
-        summary[m] = summarize_method(records[m])
-        if m in AUTHORS_RUNS and run_cfg["env"] == "u_maze":
-            summary[m]["against_authors"] = against_authors(
-                m, results.per_seed_episode_success(episodes, *EPISODE_WINDOW),
-                metrics["n_goals"][:, -1])
+        summary[m] = summarize_method(records[m], m, run_cfg["env"])
         rows.extend(results.metrics_rows(m, metrics, seeds))
         episode_rows.extend(results.episode_rows(m, episodes, seeds))
         steps = metrics["env_steps"][0]

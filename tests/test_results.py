@@ -103,3 +103,26 @@ def test_atomic_write_leaves_old_file_on_failure(tmp_path):
         results.write_json(path, {"a": Boom()})
     assert path.read_text().strip().startswith("{") and '"a": 1' in path.read_text()
     assert [p for p in os.listdir(tmp_path) if p.endswith(".tmp")] == []
+
+
+def test_reproduce_summary_compares_the_results_methods_with_the_authors():
+    from experiments.u_maze import print_table, summarize_method
+
+    n_seeds, n_episodes = 2, 420
+    success = [np.r_[np.zeros(300), np.ones(120)], np.r_[np.zeros(300), np.zeros(120)]]
+    record = {"wall_time_s": 1.0,
+              "metrics": {"env_steps": [[3000, 3000], [6000, 6000]],
+                          "eval_success": [[0.0, 0.0], [1.0, 0.0]],
+                          "n_goals": [[2, 2], [9, 5]]},
+              "episodes": {"success": success,
+                           "end_step": [np.arange(1, n_episodes + 1) * 14] * n_seeds}}
+    s = summarize_method(record, "gara_reference_results")
+    assert s["train_success_ep300_400"]["mean"] == pytest.approx(0.5)
+    d = s["against_authors"]
+    assert d["train_success_ep300_400"]["mean"] == pytest.approx(0.5 - 0.664)
+    assert d["final_n_goals"]["ours_mean"] == 7.0 and d["final_n_goals"]["n"] == [2, 5]
+    assert "against the authors' runs" in print_table({"gara_reference_results": s})
+    # Other methods, or another maze, are not compared.
+    assert "against_authors" not in summarize_method(record, "gara")
+    assert "against_authors" not in summarize_method(record, "gara_reference_results",
+                                                     "four_rooms")

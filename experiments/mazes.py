@@ -77,10 +77,26 @@ _SELF_TARGET = ("the Q-learning high level chooses the goal the agent is in as i
                 "where that goal holds the exit state (self_target='exit_goal'): most greedy "
                 "failures on big_u_maze are loops of options towards the goal the agent is in, "
                 "for GARA and refinement off alike", {"self_target": "exit_goal"})
+# The authors' Handcrafted partition of the maze as a GARA agent's initial goals: with
+# refinement off this agent differs from Handcrafted only in GARA's entry reward, so it says
+# how much of Handcrafted's lead over refinement off is its partition.
+_HAND_BOXES = ("the agent starts from the authors' Handcrafted partition of the maze (SPEC.md "
+               "2.1; initial_boxes) instead of GARA's initial one: with refinement off it "
+               "differs from Handcrafted only in the entry reward (GARA's "
+               "entry_reward='previous_plus_one', Handcrafted's 'constant')",
+               {"initial_boxes": lambda maze: _layout_boxes(maze, "handcrafted")})
+
+
+def _layout_boxes(maze: str, kind: str) -> tuple:
+    from gara_jax import partition
+
+    return partition.boxes_as_tuples(*partition.layout_boxes(maze, kind))
+
+
 #: Variants for the refinement study, each a method of :data:`METHODS` (its *base*:
 #: ``GaraConfig()`` unless a third entry names another) with what its name says changed
 #: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides[,
-#: the base]).
+#: the base]). An override may be a function of the maze's name, called for its value.
 VARIANTS = {
     # Measured on the default before it took min_volume_ratio 0.25: those rows keep the 0.05
     # of their runs ("fine_cuts"), so each differs from today's ``gara`` in what its name says.
@@ -182,6 +198,8 @@ VARIANTS = {
     "gara+final_rules": _FINAL_RULES,
     "gara_no_refinement+final_rules": (*_FINAL_RULES, "gara_no_refinement"),
     "handcrafted+final_rules": (*_FINAL_RULES, "handcrafted"),
+    "gara_no_refinement+handcrafted_boxes": (*_HAND_BOXES, "gara_no_refinement"),
+    "gara+handcrafted_boxes": _HAND_BOXES,
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}
@@ -218,7 +236,9 @@ def method_config(method: str, maze: str, steps_per_epoch=None, eval_episodes=No
     if base == "gara_no_refinement":
         config = dataclasses.replace(config, min_steps=10**9)
     if method in VARIANTS:
-        config = dataclasses.replace(config, **VARIANTS[method][1])
+        overrides = {name: value(maze) if callable(value) else value
+                     for name, value in VARIANTS[method][1].items()}
+        config = dataclasses.replace(config, **overrides)
     return config
 
 

@@ -326,3 +326,21 @@ def test_variant_table_pairs_each_variant_with_refinement_off_and_gara():
     hand = mazes.method_config("handcrafted+no_filler_goal", "big_u_maze")
     assert (off.min_steps, off.non_targets) == (10**9, "layout")
     assert type(hand).__name__ == "HandcraftedConfig" and hand.max_goals == 7
+
+
+def test_handcrafted_boxes_variant_takes_each_mazes_authors_partition():
+    from experiments import mazes
+    from gara_jax import partition
+    from gara_jax.algorithms.gara import GaraConfig, HandcraftedConfig
+
+    for maze in ("u_maze", "big_u_maze"):
+        off = mazes.method_config("gara_no_refinement+handcrafted_boxes", maze)
+        lo, hi = partition.layout_boxes(maze, "handcrafted")
+        assert np.array_equal(np.array(off.initial_boxes[0]), lo)
+        assert np.array_equal(np.array(off.initial_boxes[1]), hi)
+        assert off.min_steps == 10**9 and type(off) is GaraConfig
+        # With refinement off it is Handcrafted but for GARA's entry reward.
+        hand = mazes.method_config("handcrafted", maze)
+        assert isinstance(hand, HandcraftedConfig)
+        assert (off.entry_reward, hand.entry_reward) == ("previous_plus_one", "constant")
+    assert len(mazes.method_config("gara+handcrafted_boxes", "u_maze").initial_boxes[0]) == 6

@@ -344,3 +344,51 @@ def test_handcrafted_boxes_variant_takes_each_mazes_authors_partition():
         assert isinstance(hand, HandcraftedConfig)
         assert (off.entry_reward, hand.entry_reward) == ("previous_plus_one", "constant")
     assert len(mazes.method_config("gara+handcrafted_boxes", "u_maze").initial_boxes[0]) == 6
+
+
+def test_table_pairs_gara_and_handcrafted_with_refinement_off_seed_by_seed():
+    from experiments import mazes
+
+    def run(greedy):
+        ci = {"mean": float(np.mean(greedy)), "ci95": 0.0, "n": len(greedy)}
+        per_seed = {k: greedy for k in ("train_ep300_400", "train_last30k", "greedy_end",
+                                        "greedy_last10")}
+        return {"steps": 10, "summary": {"per_seed": per_seed, "train_ep300_400": ci,
+                                         "train_last30k": ci, "greedy_end": ci,
+                                         "greedy_last10": ci, "goals_end": 2.0,
+                                         "analysed": 0.0, "splits": 0.0}}
+
+    runs = {"u_maze": {"gara": run([0.5, 0.5]), "gara_no_refinement": run([0.25, 0.75]),
+                       "handcrafted": run([1.0, 0.5])}}
+    rows = {line.split("|")[2].strip(): line for line in mazes.table(runs).splitlines()}
+    # (1.0, 0.5) - (0.25, 0.75) = (0.75, -0.25): mean 0.25, t(0.975, 1) x 0.707 / sqrt(2) = 6.35.
+    assert rows["handcrafted − no refinement (paired)"].count("0.25 ± 6.35") == 4
+    assert rows["gara − no refinement (paired)"].count("0.00 ± 3.18") == 4
+    del runs["u_maze"]["gara_no_refinement"]
+    assert "(paired)" not in mazes.table(runs)
+
+
+def test_handcrafted_cuts_split_the_exit_goal_or_the_others_and_tile():
+    from envs.layouts import layout_spec
+    from experiments import mazes
+    from gara_jax import partition
+
+    def rows(boxes):
+        return {tuple(a[:2]) + tuple(b[:2]) for a, b in zip(*boxes)}
+
+    hand = rows(partition.layout_boxes("u_maze", "handcrafted"))
+    exit_cut = rows(mazes.handcrafted_cuts("u_maze", "exit_goal"))
+    other_cut = rows(mazes.handcrafted_cuts("u_maze", "other_goals"))
+    assert (0.0, 0.0, 1.0, 3.0) in exit_cut and (1.0, 0.0, 3.0, 3.0) in other_cut
+    assert (exit_cut - {(0.0, 0.0, 1.0, 3.0)}) | (other_cut - {(1.0, 0.0, 3.0, 3.0)}) == hand
+    for maze in ("four_rooms", "u_maze_6", "big_u_maze"):
+        lo_s, hi_s = partition.state_space(layout_spec(maze)["n"])
+        for where in ("exit_goal", "other_goals"):
+            lo, hi = mazes.handcrafted_cuts(maze, where)
+            partition.from_boxes(lo, hi, lo_s, hi_s)  # raises unless they tile
+    cfg = mazes.method_config("gara_no_refinement+hand_cut_exit_goal", "big_u_maze")
+    assert len(cfg.initial_boxes[0]) == 6 and cfg.min_steps == 10**9
+    with pytest.raises(ValueError, match="maze"):
+        mazes.handcrafted_cuts("labyrinth", "exit_goal")
+    with pytest.raises(ValueError, match="where"):
+        mazes.handcrafted_cuts("u_maze", "exit")

@@ -132,6 +132,30 @@ def handcrafted_cuts(maze: str, where: str) -> tuple:
     return partition.boxes_as_tuples(np.array(out_lo), np.array(out_hi))
 
 
+def start_goal_halves(maze: str, dim: int = 1) -> tuple:
+    """GARA's initial boxes of ``maze`` with the one holding the start bisected at its
+    midpoint along ``dim`` (0: ``x``, 1: ``y``), lower half first: the cut an analysis of
+    the start's goal makes with one bisection.
+
+    Example:
+        >>> lo, hi = start_goal_halves("u_maze")
+        >>> [(a[0], b[0], a[1], b[1]) for a, b in zip(lo, hi)]
+        [(0.0, 1.0, 0.0, 1.5), (0.0, 1.0, 1.5, 3.0), (1.0, 3.0, 0.0, 3.0)]
+    """
+    from envs.layouts import layout_spec
+    from gara_jax import partition
+
+    lo, hi = partition.layout_boxes(maze, "gara")
+    start = np.asarray(layout_spec(maze)["start"])
+    i = int(np.argmax((lo[:, :2] <= start).all(1) & (start <= hi[:, :2]).all(1)))
+    mid = (lo[i, dim] + hi[i, dim]) / 2
+    low_hi, high_lo = hi[i].copy(), lo[i].copy()
+    low_hi[dim] = high_lo[dim] = mid
+    new_lo = np.concatenate([lo[:i], [lo[i], high_lo], lo[i + 1:]])
+    new_hi = np.concatenate([hi[:i], [low_hi, hi[i]], hi[i + 1:]])
+    return partition.boxes_as_tuples(new_lo, new_hi)
+
+
 #: Variants for the refinement study, each a method of :data:`METHODS` (its *base*:
 #: ``GaraConfig()`` unless a third entry names another) with what its name says changed
 #: (``--methods NAME``; not in the default set): name -> (what it changes, the overrides[,
@@ -244,6 +268,10 @@ VARIANTS = {
         "the authors' Handcrafted boxes (handcrafted_cuts(maze, 'exit_goal'))",
         {"initial_boxes": lambda maze: handcrafted_cuts(maze, "exit_goal")},
         "gara_no_refinement"),
+    "gara_no_refinement+start_goal_halves_y": (
+        "refinement off from GARA's initial goals with the start's goal bisected along y "
+        "(start_goal_halves(maze)): the cut one bisection of the start's goal gives",
+        {"initial_boxes": lambda maze: start_goal_halves(maze, 1)}, "gara_no_refinement"),
     "gara_no_refinement+hand_cut_other_goals": (
         "refinement off from GARA's initial goals with every goal but the exit's cut along "
         "the authors' Handcrafted boxes (handcrafted_cuts(maze, 'other_goals'))",

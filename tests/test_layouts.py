@@ -386,6 +386,8 @@ def test_handcrafted_cuts_split_the_exit_goal_or_the_others_and_tile():
         for where in ("exit_goal", "other_goals"):
             lo, hi = mazes.handcrafted_cuts(maze, where)
             partition.from_boxes(lo, hi, lo_s, hi_s)  # raises unless they tile
+        lo, hi = mazes.start_goal_halves(maze)
+        partition.from_boxes(lo, hi, lo_s, hi_s)
     cfg = mazes.method_config("gara_no_refinement+hand_cut_exit_goal", "big_u_maze")
     assert len(cfg.initial_boxes[0]) == 6 and cfg.min_steps == 10**9
     with pytest.raises(ValueError, match="maze"):

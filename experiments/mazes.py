@@ -268,6 +268,12 @@ VARIANTS = {
         "the authors' Handcrafted boxes (handcrafted_cuts(maze, 'exit_goal'))",
         {"initial_boxes": lambda maze: handcrafted_cuts(maze, "exit_goal")},
         "gara_no_refinement"),
+    "gara+parent_order": (
+        "a split's pieces take the split goal's place in the first-box order "
+        "(piece_order='parent'), so a face shared with another goal stays with the region "
+        "that held it: with the reference's 'appended' order, once the U-mazes' start goal "
+        "is split the wall face x = 1 passes to the right-hand goal, and pressing against "
+        "the wall enters it again", {"piece_order": "parent"}),
     "gara_no_refinement+start_goal_halves_y": (
         "refinement off from GARA's initial goals with the start's goal bisected along y "
         "(start_goal_halves(maze)): the cut one bisection of the start's goal gives",

@@ -90,6 +90,9 @@ _HAND_BOXES = ("the agent starts from the authors' Handcrafted partition of the 
 def _layout_boxes(maze: str, kind: str) -> tuple:
     from gara_jax import partition
 
+    if (maze, kind) in partition.OVERLAPPING:  # GaraConfig's boxes must tile
+        raise ValueError(f"maze: {maze!r}'s {kind} boxes overlap, and a GARA agent's initial "
+                         "boxes must tile the space")
     return partition.boxes_as_tuples(*partition.layout_boxes(maze, kind))
 
 
@@ -622,6 +625,12 @@ def parse_args(argv=None):
         p.error("--seeds and --steps must be >= 1")
     if args.first_seed < 0:
         p.error(f"--first-seed: must be >= 0, got {args.first_seed}")
+    for maze in args.mazes:  # a variant undefined on a maze fails here, before any training
+        for method in args.methods:
+            try:
+                method_config(method, maze)
+            except ValueError as err:
+                p.error(f"--methods {method} on --mazes {maze}: {err}")
     return args
 
 

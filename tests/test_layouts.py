@@ -344,6 +344,10 @@ def test_handcrafted_boxes_variant_takes_each_mazes_authors_partition():
         assert isinstance(hand, HandcraftedConfig)
         assert (off.entry_reward, hand.entry_reward) == ("previous_plus_one", "constant")
     assert len(mazes.method_config("gara+handcrafted_boxes", "u_maze").initial_boxes[0]) == 6
+    with pytest.raises(ValueError, match="overlap"):  # the labyrinth's boxes do not tile
+        mazes.method_config("gara_no_refinement+handcrafted_boxes", "labyrinth")
+    with pytest.raises(SystemExit):  # refused before anything is trained
+        mazes.parse_args(["--mazes", "u_maze,labyrinth", "--methods", "gara+handcrafted_boxes"])
 
 
 def test_table_pairs_gara_and_handcrafted_with_refinement_off_seed_by_seed():

@@ -96,6 +96,17 @@ def _layout_boxes(maze: str, kind: str) -> tuple:
     return partition.boxes_as_tuples(*partition.layout_boxes(maze, kind))
 
 
+def _gara_boxes_and_holder(maze: str, point: str):
+    """GARA's initial boxes ``lo, hi`` of ``maze`` and the index of the first one holding the
+    layout's ``point`` (``"start"`` or ``"exit"``) in ``x, y`` (closed boxes)."""
+    from envs.layouts import layout_spec
+    from gara_jax import partition
+
+    lo, hi = partition.layout_boxes(maze, "gara")
+    xy = np.asarray(layout_spec(maze)[point])
+    return lo, hi, int(np.argmax((lo[:, :2] <= xy).all(1) & (xy <= hi[:, :2]).all(1)))
+
+
 def handcrafted_cuts(maze: str, where: str) -> tuple:
     """GARA's initial boxes of ``maze`` with some of them cut along the authors' Handcrafted
     boxes (each replaced by its non-empty intersections with them, in Handcrafted's order):
@@ -109,7 +120,6 @@ def handcrafted_cuts(maze: str, where: str) -> tuple:
         >>> [(a[0], b[0], a[1], b[1]) for a, b in zip(lo, hi)]
         [(0.0, 1.0, 0.0, 2.0), (0.0, 1.0, 2.0, 3.0), (1.0, 3.0, 0.0, 3.0)]
     """
-    from envs.layouts import layout_spec
     from gara_jax import partition
 
     if where not in ("exit_goal", "other_goals"):
@@ -119,10 +129,7 @@ def handcrafted_cuts(maze: str, where: str) -> tuple:
             partition.LAYOUT_PARTITIONS[maze]["handcrafted"]):
         raise ValueError(f"maze: {maze!r}'s Handcrafted boxes overlap or split velocities; "
                          "handcrafted_cuts needs boxes over x, y only")
-    lo, hi = partition.layout_boxes(maze, "gara")
-    exit_xy = np.asarray(layout_spec(maze)["exit"])
-    holds = (lo[:, :2] <= exit_xy).all(1) & (exit_xy <= hi[:, :2]).all(1)
-    exit_box = int(np.argmax(holds))
+    lo, hi, exit_box = _gara_boxes_and_holder(maze, "exit")
     out_lo, out_hi = [], []
     for i in range(len(lo)):
         if (i == exit_box) != (where == "exit_goal"):
@@ -145,12 +152,9 @@ def start_goal_halves(maze: str, dim: int = 1) -> tuple:
         >>> [(a[0], b[0], a[1], b[1]) for a, b in zip(lo, hi)]
         [(0.0, 1.0, 0.0, 1.5), (0.0, 1.0, 1.5, 3.0), (1.0, 3.0, 0.0, 3.0)]
     """
-    from envs.layouts import layout_spec
     from gara_jax import partition
 
-    lo, hi = partition.layout_boxes(maze, "gara")
-    start = np.asarray(layout_spec(maze)["start"])
-    i = int(np.argmax((lo[:, :2] <= start).all(1) & (start <= hi[:, :2]).all(1)))
+    lo, hi, i = _gara_boxes_and_holder(maze, "start")
     mid = (lo[i, dim] + hi[i, dim]) / 2
     low_hi, high_lo = hi[i].copy(), lo[i].copy()
     low_hi[dim] = high_lo[dim] = mid
@@ -271,12 +275,6 @@ VARIANTS = {
         "the authors' Handcrafted boxes (handcrafted_cuts(maze, 'exit_goal'))",
         {"initial_boxes": lambda maze: handcrafted_cuts(maze, "exit_goal")},
         "gara_no_refinement"),
-    "gara+parent_order": (
-        "a split's pieces take the split goal's place in the first-box order "
-        "(piece_order='parent'), so a face shared with another goal stays with the region "
-        "that held it: with the reference's 'appended' order, once the U-mazes' start goal "
-        "is split the wall face x = 1 passes to the right-hand goal, and pressing against "
-        "the wall enters it again", {"piece_order": "parent"}),
     "gara_no_refinement+start_goal_halves_y": (
         "refinement off from GARA's initial goals with the start's goal bisected along y "
         "(start_goal_halves(maze)): the cut one bisection of the start's goal gives",
@@ -286,6 +284,12 @@ VARIANTS = {
         "the authors' Handcrafted boxes (handcrafted_cuts(maze, 'other_goals'))",
         {"initial_boxes": lambda maze: handcrafted_cuts(maze, "other_goals")},
         "gara_no_refinement"),
+    "gara+parent_order": (
+        "a split's pieces take the split goal's place in the first-box order "
+        "(piece_order='parent'), so a face shared with another goal stays with the region "
+        "that held it: with the reference's 'appended' order, once the U-mazes' start goal "
+        "is split the wall face x = 1 passes to the right-hand goal, and pressing against "
+        "the wall enters it again", {"piece_order": "parent"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -290,6 +290,15 @@ VARIANTS = {
         "that held it: with the reference's 'appended' order, once the U-mazes' start goal "
         "is split the wall face x = 1 passes to the right-hand goal, and pressing against "
         "the wall enters it again", {"piece_order": "parent"}),
+    # What a split mid-run costs the high level (docs/mazes.md, "What a split costs").
+    "gara+no_split_boost": (
+        "no epsilon boost after a split (split_epsilon_boost=1, the authors' results "
+        "version; the default multiplies the high level's epsilon by 1.5)",
+        {"split_epsilon_boost": 1.0}),
+    "gara+copy_columns": (
+        "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
+        "the default: only the first reaching piece keeps it, the others start at 0)",
+        {"q_columns": "copy"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -375,6 +375,25 @@ def summarize(result, total_steps: int) -> dict:
     return out
 
 
+def split_log(result) -> list:
+    """Per seed, every split of a GARA run in order: ``epoch`` (0-based), the split goal's
+    box ``start`` and the target it was analysed against, ``target`` (each ``[lo, hi]``,
+    rounded to 1e-6), from the host steps' ``verdicts``.
+
+    Example (a run of 2 seeds, one split in seed 1 at epoch 3)::
+
+        [[], [{"epoch": 3, "start": [[0, 0, -1, -1], [3, 3, 1, 1]], "target": [...]}]]
+    """
+    out = [[] for _ in result.seeds]
+    for epoch, info in enumerate(result.host_info):
+        for v in (info or {}).get("verdicts", []):
+            if v["outcome"] == "split":
+                out[v["seed"]].append(dict(
+                    epoch=epoch, start=np.round(v["start_box"], 6).tolist(),
+                    target=np.round(v["target_box"], 6).tolist()))
+    return out
+
+
 def paired(a: dict, b: dict, measure: str) -> dict:
     """``a - b`` seed by seed for one per-seed ``measure`` of two summaries: mean and 95%
     interval (seeds without a value in either are left out).
@@ -707,13 +726,14 @@ def main(argv=None) -> int:
         if bar is not None:
             bar.close()
         summary = summarize(result, steps)
-        partitions = None
+        partitions = splits = None
         if result.algorithm.startswith("gara"):
             partitions = [[np.asarray(b).round(6).tolist() for b in p.boxes()]
                           for p in final_partitions(result)]
+            splits = split_log(result)
         record = dict(seeds=args.seeds, steps=steps, commit=version,
                       config=dataclasses.asdict(config), summary=summary,
-                      final_partitions=partitions)
+                      final_partitions=partitions, split_log=splits)
         if args.first_seed:
             record["first_seed"] = args.first_seed
         runs.setdefault(maze, {})[key] = record

@@ -611,6 +611,7 @@ def _sum_infos(calls: list, n_seeds: int, epoch: int) -> dict:
                 changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
                 fit_s=0.0, refine_s=0.0, host_s=0.0, calls=calls)
     info.update({k: 0 for k in _SUMMED_INFO})
+    info["verdicts"] = [v for c in calls for v in c.get("verdicts", [])]
     for c in calls:
         for k in (*_SUMMED_INFO, "fit_s", "refine_s", "host_s"):
             info[k] += c.get(k, 0)

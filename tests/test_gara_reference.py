@@ -279,6 +279,12 @@ def test_host_step_splits_boosts_epsilon_and_relabels_the_replay():
     new, info = alg.host_update(states, epoch=0)
     assert info["triggered"] == 1 and info["analysed"] == 1 and info["splits"] == 1
     assert bool(info["changed"][0])
+    # The verdict names the pair and its boxes as they were before the split.
+    (v,) = info["verdicts"]
+    old_lo, old_hi = np.asarray(states.partition.lo[0]), np.asarray(states.partition.hi[0])
+    assert (v["seed"], v["start"], v["target"], v["outcome"]) == (0, 0, 1, "split")
+    np.testing.assert_array_equal(v["start_box"], [old_lo[0], old_hi[0]])
+    np.testing.assert_array_equal(v["target_box"], [old_lo[1], old_hi[1]])
     count = int(new.partition.count[0])
     assert count >= 3
     lo, hi = np.asarray(new.partition.lo[0, :count]), np.asarray(new.partition.hi[0, :count])

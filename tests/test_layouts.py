@@ -398,3 +398,23 @@ def test_handcrafted_cuts_split_the_exit_goal_or_the_others_and_tile():
         mazes.handcrafted_cuts("labyrinth", "exit_goal")
     with pytest.raises(ValueError, match="where"):
         mazes.handcrafted_cuts("u_maze", "exit")
+
+
+def test_split_log_keeps_each_seeds_splits_in_order_and_drops_other_verdicts():
+    from types import SimpleNamespace
+
+    from experiments.mazes import split_log
+
+    box = [[0.0, 0.0, -1.0, -1.0], [3.0, 3.0, 1.0, 1.0]]
+    other = [[3.0, 0.0, -1.0, -1.0], [6.0, 3.0, 1.0, 1.0]]
+
+    def verdict(seed, outcome, start=box):
+        return dict(seed=seed, start=0, target=1, outcome=outcome, start_box=start,
+                    target_box=other)
+
+    result = SimpleNamespace(seeds=[5, 7], host_info=[
+        None, {"verdicts": [verdict(1, "no_reach"), verdict(1, "split")]},
+        {"verdicts": []}, {"verdicts": [verdict(0, "split", other), verdict(1, "split")]}])
+    log = split_log(result)
+    assert [[e["epoch"] for e in seed] for seed in log] == [[3], [1, 3]]
+    assert log[0][0]["start"] == other and log[1][0]["target"] == other

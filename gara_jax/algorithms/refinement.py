@@ -64,7 +64,10 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
     ``reaches``, ``no_reach``, ``capacity_skips``, ``fit_updates``, ``start_skips``; of them
     ``exit_analysed``, ``exit_splits`` for the ``exit_analysis`` pairs), holds
     ``changed [n_seeds]`` (partition grew), ``updated [n_seeds]`` (a split, or a whole ``G_s``
-    found reaching) and the time spent (``fit_s``, ``refine_s``, ``host_s``).
+    found reaching), ``verdicts`` (one dict per analysis: ``seed``, the seed's index in the
+    batch; ``start``, ``target``, the goal indices; ``outcome``, :func:`apply_split`'s; and
+    ``start_box``, ``target_box``, ``[lo, hi]`` before the step's splits) and the time spent
+    (``fit_s``, ``refine_s``, ``host_s``).
     """
     from gara_jax import boxes
     from gara_jax import partition as part
@@ -172,7 +175,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
             mse_last=states.forward.mse_last, mse_prev=states.forward.mse_prev))
         info = dict(epoch=epoch, triggered=0, stable=0, analysed=0, splits=0, reaches=0,
                     no_reach=0, capacity_skips=0, fit_updates=0, start_skips=0,
-                    exit_analysed=0, exit_splits=0,
+                    exit_analysed=0, exit_splits=0, verdicts=[],
                     changed=np.zeros(n_seeds, bool), updated=np.zeros(n_seeds, bool),
                     fit_s=0.0, refine_s=0.0)
 
@@ -282,6 +285,11 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
                     **{name: new[name][i].copy() for name in per_goal})
             outcome = apply_split(seeds[i], s_idx, d_idx, result, config.q_columns,
                                   config.q_rows_after_split, config.records_after_split)
+            # What was analysed, with the boxes as they were before any split of this step.
+            info["verdicts"].append(dict(
+                seed=int(i), start=int(s_idx), target=int(d_idx), outcome=outcome,
+                start_box=[lo[i][s_idx].tolist(), hi[i][s_idx].tolist()],
+                target_box=[lo[i][d_idx].tolist(), hi[i][d_idx].tolist()]))
             info["analysed"] += 1
             info["splits"] += outcome == "split"
             info["reaches"] += outcome == "reaches"

@@ -295,6 +295,11 @@ VARIANTS = {
         "no epsilon boost after a split (split_epsilon_boost=1, the authors' results "
         "version; the default multiplies the high level's epsilon by 1.5)",
         {"split_epsilon_boost": 1.0}),
+    "gara+split_exploration": (
+        "after a split the high level's epsilon is multiplied by 30 (split_epsilon_boost=30: "
+        "from its floor 0.01 to 0.3, back at the floor after 580 decisions), so that the "
+        "pieces get tried as targets; the default's 1.5 lifts 0.01 to 0.015",
+        {"split_epsilon_boost": 30.0}),
     "gara+copy_columns": (
         "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
         "the default: only the first reaching piece keeps it, the others start at 0)",

@@ -399,6 +399,33 @@ def split_log(result) -> list:
     return out
 
 
+def analysis_counts(result) -> list:
+    """Per seed, how often each pair was analysed with each outcome: one entry per
+    ``(start, target, outcome)`` with its ``count`` and ``first_epoch``, the boxes as
+    ``[x_lo, x_hi, y_lo, y_hi]`` (the goals' positions; rounded to 1e-6), in the order first
+    seen. Pieces of a split goal are new boxes, so a pair's entries end at its split.
+
+    Example (one seed, a pair analysed twice without a split)::
+
+        [[{"start": [3, 6, 0, 3], "target": [0, 3, 0, 3], "outcome": "no_reach",
+           "count": 2, "first_epoch": 12}]]
+    """
+    def xy(box):
+        lo, hi = np.round(box, 6).tolist()
+        return [lo[0], hi[0], lo[1], hi[1]]
+
+    out = [{} for _ in result.seeds]
+    for epoch, info in enumerate(result.host_info):
+        for v in (info or {}).get("verdicts", []):
+            start, target = xy(v["start_box"]), xy(v["target_box"])
+            key = (tuple(start), tuple(target), v["outcome"])
+            entry = out[v["seed"]].setdefault(key, dict(start=start, target=target,
+                                                        outcome=v["outcome"], count=0,
+                                                        first_epoch=epoch))
+            entry["count"] += 1
+    return [list(seed.values()) for seed in out]
+
+
 def paired(a: dict, b: dict, measure: str) -> dict:
     """``a - b`` seed by seed for one per-seed ``measure`` of two summaries: mean and 95%
     interval (seeds without a value in either are left out).
@@ -739,6 +766,8 @@ def main(argv=None) -> int:
         record = dict(seeds=args.seeds, steps=steps, commit=version,
                       config=dataclasses.asdict(config), summary=summary,
                       final_partitions=partitions, split_log=splits)
+        if splits is not None:
+            record["analyses"] = analysis_counts(result)
         if args.first_seed:
             record["first_seed"] = args.first_seed
         runs.setdefault(maze, {})[key] = record

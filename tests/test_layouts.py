@@ -403,7 +403,7 @@ def test_handcrafted_cuts_split_the_exit_goal_or_the_others_and_tile():
 def test_split_log_keeps_each_seeds_splits_in_order_and_drops_other_verdicts():
     from types import SimpleNamespace
 
-    from experiments.mazes import split_log
+    from experiments.mazes import analysis_counts, split_log
 
     box = [[0.0, 0.0, -1.0, -1.0], [3.0, 3.0, 1.0, 1.0]]
     other = [[3.0, 0.0, -1.0, -1.0], [6.0, 3.0, 1.0, 1.0]]
@@ -418,3 +418,8 @@ def test_split_log_keeps_each_seeds_splits_in_order_and_drops_other_verdicts():
     log = split_log(result)
     assert [[e["epoch"] for e in seed] for seed in log] == [[3], [1, 3]]
     assert log[0][0]["start"] == other and log[1][0]["target"] == other
+    counts = analysis_counts(result)
+    assert [(e["outcome"], e["count"], e["first_epoch"]) for e in counts[1]] == [
+        ("no_reach", 1, 1), ("split", 2, 1)]
+    assert counts[0] == [dict(start=[3.0, 6.0, 0.0, 3.0], target=[3.0, 6.0, 0.0, 3.0],
+                              outcome="split", count=1, first_epoch=3)]

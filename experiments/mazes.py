@@ -300,6 +300,10 @@ VARIANTS = {
         "from its floor 0.01 to 0.3, back at the floor after 580 decisions), so that the "
         "pieces get tried as targets; the default's 1.5 lifts 0.01 to 0.015",
         {"split_epsilon_boost": 30.0}),
+    "gara+separation_split": (
+        "an undecided box is bisected where its halves' coverage differs most "
+        "(split_rule='separation'), not along the largest smear (gradient bound times "
+        "width, SPEC.md 3.6)", {"split_rule": "separation"}),
     "gara+copy_columns": (
         "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
         "the default: only the first reaching piece keeps it, the others start at 0)",

@@ -187,6 +187,30 @@ def test_split_dims_limit_the_bisection():
             refine(net, start_lo, start_hi, t_lo, t_hi, split_dims=bad)
 
 
+def test_separation_rule_cuts_where_reaching_changes_not_where_the_box_is_widest():
+    """F = s + (1, 0, 0, 0) from [0,2]x[0,4] towards x in [1.5, 3.5], one bisection allowed.
+    Smear is gradient times width, so the wider y is cut: both halves look like their parent
+    (c1 = 0.75) and nothing reaches. The separation rule compares both cuts' halves: along x
+    their c1 are 0.5 and 1 (along y 0.75 and 0.75), so it cuts x and finds [1,2] reaching."""
+    net = translation_net([1.0, 0, 0, 0])
+    lo, hi = np.array([0.0, 0, 0, 0]), np.array([2.0, 4, 1, 1])
+    t_lo, t_hi = np.array([1.5, 0, 0, 0]), np.array([3.5, 4, 1, 1])
+    kw = dict(tau1=0.9, tau2=0.01, min_volume_ratio=0.5, method="ibp")
+    smear = refine(net, lo, hi, t_lo, t_hi, **kw)
+    assert len(smear.reaching_lo) == 0 and smear.nonreaching_lo.tolist() == [lo.tolist()]
+    sep = refine(net, lo, hi, t_lo, t_hi, split_rule="separation", **kw)
+    np.testing.assert_array_equal(sep.reaching_lo, [[1.0, 0, 0, 0]])
+    np.testing.assert_array_equal(sep.reaching_hi, [[2.0, 4, 1, 1]])
+    np.testing.assert_array_equal(sep.nonreaching_hi, [[1.0, 4, 1, 1]])
+    assert sep.n_analysed == smear.n_analysed == 3  # the candidates' bounds are not counted
+    # With one dimension allowed there is nothing to compare: the rules agree.
+    one = [refine(net, lo, hi, t_lo, t_hi, split_dims=(1,), split_rule=r, **kw)
+           for r in ("smear", "separation")]
+    assert one[0].nonreaching_lo.tolist() == one[1].nonreaching_lo.tolist() == [lo.tolist()]
+    with pytest.raises(ValueError, match="split_rule"):
+        refine(net, lo, hi, t_lo, t_hi, split_rule="widest")
+
+
 def test_merge_siblings_keeps_pieces_of_different_branches_apart():
     """F = x + 1 on x in [0, 4] towards x in [2, 3.5] (tau1 0.9, tau2 0.01): the bisection's
     leaves, left to right, are [0,1] no, [1,2] yes, [2,2.5] yes, [2.5,3] no, [3,4] no.

@@ -45,7 +45,7 @@ from gara_jax.agents import forward_model as fm
 from gara_jax.agents import high_level as hl
 from gara_jax.agents.dqn import DQNConfig, DQNState, Transition, make_dqn
 from gara_jax.algorithms.base import Algorithm, epoch_metrics
-from gara_jax.reach.refine import MERGE_RULES
+from gara_jax.reach.refine import MERGE_RULES, SPLIT_RULES
 
 REFINE_METHODS = ("crown", "ibp", "zonotope", "zonotope_box")
 
@@ -442,6 +442,11 @@ class GaraConfig(HandcraftedConfig):
             within the intervals. For an environment whose first two observation dimensions
             are not where the agent is, set it (checked against the observation space when
             the agent is built).
+        split_rule: which dimension an analysis bisects an undecided box along
+            (:func:`gara_jax.reach.refine_many`). ``"smear"`` (SPEC.md 3.6, the presets and
+            the default): the largest gradient bound times width. ``"separation"``: the cut
+            whose two halves' coverage ``c1`` differ most, so a goal is cut where reaching
+            ``G_d`` changes (one more batched bound call per level of the bisection).
         merge: what an analysis merges before its pieces become goals
             (:func:`gara_jax.reach.refine_many`). ``"full"`` (this project's reading of SPEC.md
             3.6, the presets): same-verdict sibling halves, then adjacent same-verdict boxes
@@ -600,6 +605,7 @@ class GaraConfig(HandcraftedConfig):
     target_margin: float = 0.0
     split_dims: tuple | None = (0, 1)
     merge: str = "full"
+    split_rule: str = "smear"
     q_rows_after_split: str = "copied"
     pair_counts: str = "memory"
     records_after_split: str = "cleared"
@@ -658,6 +664,7 @@ class GaraConfig(HandcraftedConfig):
                              f"{self.exit_radius!r}")
         _one_of(self, "coverage", COVERAGE_RULES)
         _one_of(self, "merge", MERGE_RULES)
+        _one_of(self, "split_rule", SPLIT_RULES)
         if not (isinstance(self.target_margin, int | float) and not isinstance(
                 self.target_margin, bool) and 0.0 <= self.target_margin < 0.5):
             raise ValueError(f"target_margin: must be a number in [0, 0.5), got "

@@ -255,7 +255,7 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
             method=config.refine_method, small_box_c1=config.small_box_c1,
             coverage=config.coverage, target_margin=config.target_margin,
-            split_dims=config.split_dims, merge=config.merge)
+            split_dims=config.split_dims, merge=config.merge, split_rule=config.split_rule)
         info["refine_s"] = time.perf_counter() - t_ref
 
         # 4. Apply the verdicts seed by seed on host copies, then write everything back.

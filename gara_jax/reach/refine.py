@@ -42,6 +42,8 @@ METHODS = ("ibp", "crown", "zonotope", "zonotope_box")
 #: same-verdict boxes until no two share a face; ``"siblings"``, the sibling halves only.
 MERGE_RULES = ("full", "siblings")
 MIN_BUCKET = 8  # smallest padded frontier per job: fewer shapes to compile
+#: How an undecided box picks its bisection dimension (``refine_many``'s ``split_rule``).
+SPLIT_RULES = ("smear", "separation")
 
 
 class RefineResult(NamedTuple):
@@ -181,7 +183,7 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 coverage: str = "final", target_margin: float = 0.0,
                 split_dims: Sequence[int] | None = None,
                 merge: str = "full", cover_lo=None, cover_hi=None, input_lo=None,
-                input_hi=None) -> list[RefineResult]:
+                input_hi=None, split_rule: str = "smear") -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -207,6 +209,12 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         split_dims: the dimensions a box may be bisected along (``None``: all). The largest
             smear among them picks the dimension; a box with no width left in them is treated
             as too small to split.
+        split_rule: which of the ``split_dims`` an undecided box is bisected along.
+            ``"smear"`` (the reference, SPEC.md 3.6): the largest smear (gradient bound times
+            width; ties: widest, then lowest index). ``"separation"``: the bisection whose two
+            halves' ``c1`` differ most, each candidate's halves bounded in one extra batched
+            call (ties: the smear order), so a box is cut where reaching changes, not where
+            the model's output is most sensitive.
         merge: ``"full"``: after the analysis, same-verdict sibling halves are merged back
             into their parent, then adjacent same-verdict boxes until no two share a full
             face; ``"siblings"``: only the first step, so two same-verdict boxes from
@@ -248,6 +256,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         raise ValueError(f"small_box_c1: must be None or lie in [0, 1], got {small_box_c1}")
     if merge not in MERGE_RULES:
         raise ValueError(f"merge: must be one of {MERGE_RULES}, got {merge!r}")
+    if split_rule not in SPLIT_RULES:
+        raise ValueError(f"split_rule: must be one of {SPLIT_RULES}, got {split_rule!r}")
     if coverage not in boxes.COVERAGE_RULES:
         raise ValueError(f"coverage: must be one of {boxes.COVERAGE_RULES}, got {coverage!r}")
     if not 0.0 <= target_margin < 0.5:
@@ -311,19 +321,33 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
     frontier = [[0] for _ in range(n_jobs)]
     n_analysed = [0] * n_jobs
     depth = [0] * n_jobs
-    while any(frontier):
-        width = _next_pow2(max(len(f) for f in frontier), MIN_BUCKET)
+
+    def analyse(per_job):
+        """``c1, c2, smear`` of ``per_job[j]``, a list of ``(lo, hi)`` boxes per job."""
+        width = _next_pow2(max(len(f) for f in per_job), MIN_BUCKET)
         b_lo = np.repeat(s_lo[pad][:, None, :], width, axis=1)
         b_hi = np.repeat(s_hi[pad][:, None, :], width, axis=1)
-        for j, nodes in enumerate(frontier):
-            for i, n in enumerate(nodes):
-                b_lo[j, i], b_hi[j, i] = trees[j][n]["lo"], trees[j][n]["hi"]
-        c1, c2, smear = jax.device_get(_analyse_jit(
+        for j, job_boxes in enumerate(per_job):
+            for i, (lo_i, hi_i) in enumerate(job_boxes):
+                b_lo[j, i], b_hi[j, i] = lo_i, hi_i
+        return jax.device_get(_analyse_jit(
             layers_pad, jnp.asarray(b_lo, net_dtype), jnp.asarray(b_hi, net_dtype),
             t_lo_pad, t_hi_pad, c_lo_pad, c_hi_pad, i_lo_pad, i_hi_pad,
             jnp.asarray(target_margin, net_dtype),
             method=method,
             coverage=coverage))
+
+    def halves(node, split):
+        mid = node["lo"][split] + (node["hi"][split] - node["lo"][split]) / dtype(2)
+        lo_a, hi_a = node["lo"], node["hi"].copy()
+        lo_b, hi_b = node["lo"].copy(), node["hi"]
+        hi_a[split] = lo_b[split] = mid
+        return (lo_a, hi_a), (lo_b, hi_b)
+
+    while any(frontier):
+        c1, c2, smear = analyse([[(trees[j][n]["lo"], trees[j][n]["hi"]) for n in nodes]
+                                 for j, nodes in enumerate(frontier)])
+        to_split = [[] for _ in range(n_jobs)]  # (node, dimensions in preference order)
         new_frontier = [[] for _ in range(n_jobs)]
         for j, nodes in enumerate(frontier):
             tree = trees[j]
@@ -345,13 +369,27 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                     continue
                 # Largest smear; ties: widest, then lowest index. Only dimensions with width.
                 order = np.lexsort((np.arange(dim), -width_i, -smear[j, i]))
-                split = int(next(d for d in order if width_i[d] > 0))
-                mid = node["lo"][split] + (node["hi"][split] - node["lo"][split]) / dtype(2)
-                lo_a, hi_a = node["lo"], node["hi"].copy()
-                lo_b, hi_b = node["lo"].copy(), node["hi"]
-                hi_a[split] = lo_b[split] = mid
+                to_split[j].append((n, [int(d) for d in order if width_i[d] > 0]))
+        if split_rule == "separation" and any(len(d) > 1 for job in to_split for _, d in job):
+            # Bound both halves of every candidate bisection; keep the one whose halves'
+            # c1 differ most (a stable sort keeps the smear order among ties).
+            cands = [[h for n, dims in job for d in dims for h in halves(trees[j][n], d)]
+                     for j, job in enumerate(to_split)]
+            h_c1 = analyse(cands)[0]
+            for j, job in enumerate(to_split):
+                k = 0
+                for idx, (n, dims) in enumerate(job):
+                    gap = [abs(float(h_c1[j, k + 2 * m]) - float(h_c1[j, k + 2 * m + 1]))
+                           for m in range(len(dims))]
+                    k += 2 * len(dims)
+                    job[idx] = (n, [dims[m] for m in np.argsort(-np.asarray(gap),
+                                                                 kind="stable")])
+        for j, job in enumerate(to_split):
+            tree = trees[j]
+            for n, dims in job:
+                node = tree[n]
                 node["children"] = (len(tree), len(tree) + 1)
-                for lo_c, hi_c in ((lo_a, hi_a), (lo_b, hi_b)):
+                for lo_c, hi_c in halves(node, dims[0]):
                     tree.append(dict(lo=lo_c, hi=hi_c, depth=node["depth"] + 1, children=None,
                                      verdict=False))
                 new_frontier[j].extend(node["children"])
@@ -364,7 +402,8 @@ def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: 
            tau2: float = 0.1, min_volume_ratio: float = 0.05,
            method: str = "crown", small_box_c1: float | None = None,
            coverage: str = "final", target_margin: float = 0.0,
-           split_dims: Sequence[int] | None = None, merge: str = "full") -> RefineResult:
+           split_dims: Sequence[int] | None = None, merge: str = "full",
+           split_rule: str = "smear") -> RefineResult:
     """Split the start box ``G_s`` into boxes that reach ``G_d`` and boxes that do not.
 
     The single-job form of :func:`refine_many`; ``layers_or_params`` is one forward model (a
@@ -394,4 +433,5 @@ def refine(layers_or_params, start_lo, start_hi, target_lo, target_hi, *, tau1: 
     return refine_many(stacked, s_lo[None], s_hi[None], t_lo[None], t_hi[None], tau1=tau1,
                        tau2=tau2, min_volume_ratio=min_volume_ratio, method=method,
                        small_box_c1=small_box_c1, coverage=coverage,
-                       target_margin=target_margin, split_dims=split_dims, merge=merge)[0]
+                       target_margin=target_margin, split_dims=split_dims, merge=merge,
+                       split_rule=split_rule)[0]

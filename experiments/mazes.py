@@ -462,6 +462,60 @@ def refinement_off(method: str, methods: dict) -> str | None:
     return same if same in methods else "gara_no_refinement"
 
 
+def goal_cuts(maze: str, lo, hi) -> str:
+    """Which of GARA's initial goals of ``maze`` a partition ``lo, hi [N, D]`` cuts, and
+    along what: one group per initial goal, in their order, of ``x``, ``y`` and ``v`` (a
+    velocity) for the dimensions along which its pieces are cut, ``-`` for an uncut goal.
+
+    Example:
+        >>> lo = np.array([[0, 0, -1, -1], [1, 0, -1, -1], [1, 1.5, -1, -1.]])
+        >>> hi = np.array([[1, 3, 1, 1], [3, 1.5, 1, 1], [3, 3, 1, 1.]])
+        >>> goal_cuts("u_maze", lo, hi)
+        '- y'
+    """
+    from gara_jax import partition
+
+    lo, hi = np.asarray(lo, float), np.asarray(hi, float)
+    out = []
+    for a, b in zip(*partition.layout_boxes(maze, "gara"), strict=True):
+        inside = (lo >= a - 1e-9).all(1) & (hi <= b + 1e-9).all(1)
+        cut = (lo[inside] > a + 1e-9) | (hi[inside] < b - 1e-9)  # [pieces, D]
+        dims = cut.any(0)
+        out.append("".join(n for n, c in (("x", dims[0]), ("y", dims[1]),
+                                          ("v", dims[2:].any())) if c) or "-")
+    return " ".join(out)
+
+
+def cut_table(runs: dict, maze: str) -> str:
+    """Every seed of every stored GARA run on ``maze`` that starts from GARA's initial goals
+    (seeds 0-19, ``initial_boxes`` unset), grouped by :func:`goal_cuts` of its final
+    partition: seeds, greedy success over the last 10 evaluations, the same seeds'
+    refinement-off agent (:func:`refinement_off`) and the mean difference. An observation,
+    not an ablation: a seed's final partition is itself an outcome of its run."""
+    methods = runs.get(maze, {})
+    groups: dict = {}
+    used = 0
+    for key, run in methods.items():
+        off = refinement_off(key, methods)
+        if ("@" in key or key.startswith("gara_no_refinement") or off not in methods
+                or not run.get("final_partitions") or run["config"].get("initial_boxes")):
+            continue
+        used += 1
+        mine = run["summary"]["per_seed"]["greedy_last10"]
+        theirs = methods[off]["summary"]["per_seed"]["greedy_last10"]
+        for (lo, hi), g, o in zip(run["final_partitions"], mine, theirs, strict=True):
+            groups.setdefault(goal_cuts(maze, lo, hi), []).append((g, o))
+    lines = [f"{maze}: the final partitions of {used} GARA runs' seeds, by the initial goals "
+             "they cut (in GARA's initial order)", "",
+             "| cuts | seeds | greedy, last 10 evals | refinement off, same seeds | difference |",
+             "|---|---:|---:|---:|---:|"]
+    for sig, v in sorted(groups.items(), key=lambda kv: -len(kv[1])):
+        v = np.asarray(v, float)
+        lines.append(f"| `{sig}` | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | "
+                     f"{(v[:, 0] - v[:, 1]).mean():+.2f} |")
+    return "\n".join(lines)
+
+
 def run_key(method: str, seeds) -> str:
     """Where a run of ``method`` on ``seeds`` is stored: ``method`` for seeds ``0..n-1``,
     ``method@seedsA-B`` for another block (``--first-seed``).
@@ -677,6 +731,10 @@ def parse_args(argv=None):
     p.add_argument("--rerun", action="store_true", help="run again what --out already holds")
     p.add_argument("--dry-run", action="store_true", help="print the plan; train nothing")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument("--cut-table", metavar="JSON", default=None,
+                   help="print, for each of --mazes, the final partitions of every GARA run "
+                        "stored in JSON (a mazes.json) grouped by the goals they cut "
+                        "(cut_table); train nothing")
     from gara_jax import compile_cache
 
     compile_cache.add_argument(p)
@@ -712,6 +770,10 @@ def steps_for(args, maze: str) -> int:
 
 def main(argv=None) -> int:
     args = parse_args(argv)
+    if args.cut_table is not None:
+        runs = json.loads(Path(args.cut_table).read_text())["runs"]
+        print("\n\n".join(cut_table(runs, maze) for maze in args.mazes))
+        return 0
     spe = QUICK["steps_per_epoch"] if args.quick else None
     evals = QUICK["eval_episodes"] if args.quick else None
     out = Path(args.out)

@@ -423,3 +423,30 @@ def test_split_log_keeps_each_seeds_splits_in_order_and_drops_other_verdicts():
         ("no_reach", 1, 1), ("split", 2, 1)]
     assert counts[0] == [dict(start=[3.0, 6.0, 0.0, 3.0], target=[3.0, 6.0, 0.0, 3.0],
                               outcome="split", count=1, first_epoch=3)]
+
+
+def test_cut_table_groups_seeds_by_the_goals_their_final_partition_cuts():
+    from experiments.mazes import cut_table, goal_cuts
+
+    whole = [[[0, 0, -1, -1], [1, 0, -1, -1]], [[1, 3, 1, 1], [3, 3, 1, 1]]]
+    right_y = [[[0, 0, -1, -1], [1, 0, -1, -1], [1, 1.5, -1, -1]],
+               [[1, 3, 1, 1], [3, 1.5, 1, 1], [3, 3, 1, 1]]]
+    left_v = [[[0, 0, -1, -1], [0, 0, 0, -1], [1, 0, -1, -1]],
+              [[1, 3, 0, 1], [1, 3, 1, 1], [3, 3, 1, 1]]]
+    assert [goal_cuts("u_maze", *p) for p in (whole, right_y, left_v)] == ["- -", "- y", "v -"]
+
+    def run(greedy, partitions=None, **config):
+        return {"summary": {"per_seed": {"greedy_last10": greedy}}, "config": config,
+                "final_partitions": partitions}
+
+    runs = {"u_maze": {
+        "gara_no_refinement": run([0.5, 0.6, 0.7]),
+        "gara": run([0.9, 0.4, 0.7], [right_y, right_y, whole]),
+        "gara+one_cut": run([0.1, 0.2, 0.3], [whole, left_v, whole]),
+        "gara@seeds20-39": run([1.0, 1.0, 1.0], [whole] * 3),  # another block: left out
+        "gara+boxes": run([1.0, 1.0, 1.0], [whole] * 3, initial_boxes=[[0]]),  # left out
+    }}
+    rows = [r for r in cut_table(runs, "u_maze").splitlines() if r.startswith("| `")]
+    # "- -": gara seed 2 and gara+one_cut seeds 0, 2: (0.7 + 0.1 + 0.3) / 3 against (0.7 + 0.5 + 0.7) / 3.
+    assert rows == ["| `- -` | 3 | 0.37 | 0.63 | -0.27 |", "| `- y` | 2 | 0.65 | 0.55 | +0.10 |",
+                    "| `v -` | 1 | 0.20 | 0.60 | -0.40 |"]

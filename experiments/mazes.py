@@ -304,6 +304,10 @@ VARIANTS = {
         "an undecided box is bisected where its halves' coverage differs most "
         "(split_rule='separation'), not along the largest smear (gradient bound times "
         "width, SPEC.md 3.6)", {"split_rule": "separation"}),
+    "gara+space_clip": (
+        "each bounded reachable box is intersected with the state space before its "
+        "coverage is measured (reach_clip='space'; sound): bounds that overshoot the "
+        "velocity limits or the maze no longer lower c1", {"reach_clip": "space"}),
     "gara+copy_columns": (
         "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
         "the default: only the first reaching piece keeps it, the others start at 0)",

@@ -341,3 +341,32 @@ def test_bad_arguments_raise_value_error_naming_them():
     stacked = [(w[None], b[None]) for w, b in net]
     with pytest.raises(ValueError, match="2 jobs"):
         refine_many(stacked, np.zeros((2, 4)), np.ones((2, 4)), np.zeros((2, 4)), np.ones((2, 4)))
+
+
+def test_reach_box_clips_bounds_that_overshoot_the_space():
+    """F = (x + 1, y, 3 vx, 3 vy) from [0,1]x[0,3] (full velocities) towards [1,3]x[0,3]: the
+    velocity bounds [-3, 3] put a third of R's width inside the target in each velocity
+    dimension, so c1 = 1/9 and nothing reaches. Intersected with the state space (|v| <= 1)
+    R lies inside the target: the whole start box reaches. A bound wholly outside the reach
+    box lands on its nearest face."""
+    d = 4
+    keep = np.eye(d, 3 * d)
+    layers = [(np.concatenate([keep, -keep], 0).T.astype(np.float32), np.zeros(2 * d, np.float32)),
+              ((np.concatenate([np.eye(d), -np.eye(d)]) * np.array([1, 1, 3, 3])).astype(np.float32),
+               np.array([1.0, 0, 0, 0], np.float32))]
+    lo, hi = np.array([0.0, 0, -1, -1]), np.array([1.0, 3, 1, 1])
+    t_lo, t_hi = np.array([1.0, 0, -1, -1]), np.array([3.0, 3, 1, 1])
+    stacked = [(w[None], b[None]) for w, b in layers]
+    args = (stacked, lo[None], hi[None], t_lo[None], t_hi[None])
+    kw = dict(tau1=0.9, tau2=0.01, min_volume_ratio=0.25, method="ibp")
+    plain = refine_many(*args, **kw)[0]
+    assert len(plain.reaching_lo) == 0
+    space = dict(reach_lo=np.array([[0.0, 0, -1, -1]]), reach_hi=np.array([[3.0, 3, 1, 1]]))
+    clipped = refine_many(*args, **space, **kw)[0]
+    np.testing.assert_array_equal(clipped.reaching_lo, lo[None])
+    np.testing.assert_array_equal(clipped.reaching_hi, hi[None])
+    # A reach box left of every prediction: R is moved onto x = 0.5, outside the target.
+    left = dict(reach_lo=np.array([[0.0, 0, -1, -1]]), reach_hi=np.array([[0.5, 3, 1, 1]]))
+    assert len(refine_many(*args, **left, **kw)[0].reaching_lo) == 0
+    with pytest.raises(ValueError, match="reach_lo/reach_hi"):
+        refine_many(*args, reach_lo=space["reach_lo"], **kw)

@@ -442,6 +442,12 @@ class GaraConfig(HandcraftedConfig):
             within the intervals. For an environment whose first two observation dimensions
             are not where the agent is, set it (checked against the observation space when
             the agent is built).
+        reach_clip: ``"space"``: the bounded reachable box of every analysed piece is
+            intersected with the space the partition tiles (the bounding box of its goals)
+            before its coverage is measured; sound, since no true successor leaves that
+            space, and it keeps bounds that overshoot the walls of the state space (velocities
+            beyond their limits, positions beyond the maze) from lowering ``c1``. ``"none"``
+            (SPEC.md 3.6, the presets and the default): the bounds as they are.
         split_rule: which dimension an analysis bisects an undecided box along
             (:func:`gara_jax.reach.refine_many`). ``"smear"`` (SPEC.md 3.6, the presets and
             the default): the largest gradient bound times width. ``"separation"``: the cut
@@ -606,6 +612,7 @@ class GaraConfig(HandcraftedConfig):
     split_dims: tuple | None = (0, 1)
     merge: str = "full"
     split_rule: str = "smear"
+    reach_clip: str = "none"
     q_rows_after_split: str = "copied"
     pair_counts: str = "memory"
     records_after_split: str = "cleared"
@@ -665,6 +672,7 @@ class GaraConfig(HandcraftedConfig):
         _one_of(self, "coverage", COVERAGE_RULES)
         _one_of(self, "merge", MERGE_RULES)
         _one_of(self, "split_rule", SPLIT_RULES)
+        _one_of(self, "reach_clip", ("none", "space"))
         if not (isinstance(self.target_margin, int | float) and not isinstance(
                 self.target_margin, bool) and 0.0 <= self.target_margin < 0.5):
             raise ValueError(f"target_margin: must be a number in [0, 0.5), got "

@@ -248,6 +248,12 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
             input_lo, input_hi = _data_input_boxes(
                 config, jax.device_get(pair_ranges(states.memory, start_goal, target_goal)),
                 jobs, lo, hi)
+        reach_lo = reach_hi = None
+        if config.reach_clip == "space":
+            # The space the partition tiles: no true successor state lies outside it.
+            n_live = host["count"]
+            reach_lo = np.stack([lo[i][:n_live[i]].min(0) for i, _, _ in jobs])
+            reach_hi = np.stack([hi[i][:n_live[i]].max(0) for i, _, _ in jobs])
         results = reach.refine_many(
             mlp_layers(job_params), start_lo, start_hi,
             np.stack([lo[i][d] for i, _, d in jobs]), np.stack([hi[i][d] for i, _, d in jobs]),
@@ -255,7 +261,8 @@ def make_host_update(config, locate, exit_goals, dqn, forward, start_obs=None):
             tau1=config.tau1, tau2=config.tau2, min_volume_ratio=config.min_volume_ratio,
             method=config.refine_method, small_box_c1=config.small_box_c1,
             coverage=config.coverage, target_margin=config.target_margin,
-            split_dims=config.split_dims, merge=config.merge, split_rule=config.split_rule)
+            split_dims=config.split_dims, merge=config.merge, split_rule=config.split_rule,
+            reach_lo=reach_lo, reach_hi=reach_hi)
         info["refine_s"] = time.perf_counter() - t_ref
 
         # 4. Apply the verdicts seed by seed on host copies, then write everything back.

@@ -85,12 +85,13 @@ def _gradient_smear(layers, pre, lo, hi, dim):
     return grad * (hi - lo)[:, :dim]
 
 
-def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, margin, method,
-                 coverage="final"):
+def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, q_lo, q_hi, margin,
+                 method, coverage="final"):
     """Coverage ratios and smear for boxes ``s_lo/s_hi [B, D]`` of one job: the boxes are
     clipped into ``i_lo/i_hi`` (the job's input box), the network's goal inputs are
     ``t_lo/t_hi``, the coverage is measured against ``c_lo/c_hi`` (``G_d``, or the job's own
-    coverage box) shrunk by ``margin`` times its width on every side."""
+    coverage box) shrunk by ``margin`` times its width on every side, and the bounded output box
+    is first clipped into ``q_lo/q_hi`` (onto its nearest face where it lies outside)."""
     s_lo, s_hi = jnp.clip(s_lo, i_lo, i_hi), jnp.clip(s_hi, i_lo, i_hi)
     n = s_lo.shape[0]
     dim = s_lo.shape[1]
@@ -109,16 +110,17 @@ def _analyse_job(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, margin,
                for (l1, u1), (l2, u2) in zip(pre, crown_preactivations(layers, lo, hi),
                                              strict=True)]
     r_lo, r_hi = pre[-1]
+    r_lo, r_hi = jnp.clip(r_lo, q_lo, q_hi), jnp.clip(r_hi, q_lo, q_hi)
     inset = margin * (c_hi - c_lo)
     c1, c2 = boxes.coverage(r_lo, r_hi, c_lo + inset, c_hi - inset, rule=coverage)
     smear = _gradient_smear(layers, pre, lo, hi, dim)
     return c1, c2, smear
 
 
-def _analyse(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, margin, method,
-             coverage="final"):
+def _analyse(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, q_lo, q_hi, margin,
+             method, coverage="final"):
     return jax.vmap(lambda *a: _analyse_job(*a, margin, method, coverage))(
-        layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi)
+        layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, q_lo, q_hi)
 
 
 _analyse_jit = TunedJit(_analyse, static_argnames=("method", "coverage"))
@@ -183,7 +185,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 coverage: str = "final", target_margin: float = 0.0,
                 split_dims: Sequence[int] | None = None,
                 merge: str = "full", cover_lo=None, cover_hi=None, input_lo=None,
-                input_hi=None, split_rule: str = "smear") -> list[RefineResult]:
+                input_hi=None, split_rule: str = "smear", reach_lo=None,
+                reach_hi=None) -> list[RefineResult]:
     """Refine ``J`` independent jobs, each with its own forward model, in batched bound calls.
 
     Args:
@@ -209,6 +212,11 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         split_dims: the dimensions a box may be bisected along (``None``: all). The largest
             smear among them picks the dimension; a box with no width left in them is treated
             as too small to split.
+        reach_lo, reach_hi: ``[J, D]``, a box every true successor state lies in (e.g. the
+            state space; ``None``: none). Each bounded reachable box is intersected with it
+            before the coverage is measured, which stays sound: the states the bounds leave
+            out cannot be reached. Where a bound lies wholly outside it, it is moved onto the
+            nearest face.
         split_rule: which of the ``split_dims`` an undecided box is bisected along.
             ``"smear"`` (the reference, SPEC.md 3.6): the largest smear (gradient bound times
             width; ties: widest, then lowest index). ``"separation"``: the bisection whose two
@@ -278,6 +286,14 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
             raise ValueError(f"cover_lo/cover_hi: expected shape {t_lo.shape}, got {c_lo.shape}")
     if (input_lo is None) != (input_hi is None):
         raise ValueError("input_lo/input_hi: give both or neither")
+    if (reach_lo is None) != (reach_hi is None):
+        raise ValueError("reach_lo/reach_hi: give both or neither")
+    if reach_lo is None:
+        q_lo, q_hi = np.full(s_lo.shape, -np.inf), np.full(s_lo.shape, np.inf)
+    else:
+        q_lo, q_hi = boxes.validate_boxes(reach_lo, reach_hi, "reach_lo/reach_hi")
+        if q_lo.shape != s_lo.shape:
+            raise ValueError(f"reach_lo/reach_hi: expected shape {s_lo.shape}, got {q_lo.shape}")
     if input_lo is None:
         i_lo, i_hi = np.full(s_lo.shape, -np.inf), np.full(s_lo.shape, np.inf)
     else:
@@ -315,6 +331,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
     c_hi_pad = jnp.asarray(c_hi[pad], net_dtype)
     i_lo_pad = jnp.asarray(i_lo[pad], net_dtype)
     i_hi_pad = jnp.asarray(i_hi[pad], net_dtype)
+    q_lo_pad = jnp.asarray(q_lo[pad], net_dtype)
+    q_hi_pad = jnp.asarray(q_hi[pad], net_dtype)
 
     trees = [[dict(lo=s_lo[j], hi=s_hi[j], depth=0, children=None, verdict=False)]
              for j in range(n_jobs)]
@@ -332,7 +350,7 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
                 b_lo[j, i], b_hi[j, i] = lo_i, hi_i
         return jax.device_get(_analyse_jit(
             layers_pad, jnp.asarray(b_lo, net_dtype), jnp.asarray(b_hi, net_dtype),
-            t_lo_pad, t_hi_pad, c_lo_pad, c_hi_pad, i_lo_pad, i_hi_pad,
+            t_lo_pad, t_hi_pad, c_lo_pad, c_hi_pad, i_lo_pad, i_hi_pad, q_lo_pad, q_hi_pad,
             jnp.asarray(target_margin, net_dtype),
             method=method,
             coverage=coverage))

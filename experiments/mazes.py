@@ -308,6 +308,10 @@ VARIANTS = {
         "each bounded reachable box is intersected with the state space before its "
         "coverage is measured (reach_clip='space'; sound): bounds that overshoot the "
         "velocity limits or the maze no longer lower c1", {"reach_clip": "space"}),
+    "gara+space_clip+separation_split": (
+        "both: the bounds clipped to the state space, and a box bisected where its halves' "
+        "coverage differs most (with clipped bounds c1 is no longer near 0 everywhere)",
+        {"reach_clip": "space", "split_rule": "separation"}),
     "gara+copy_columns": (
         "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
         "the default: only the first reaching piece keeps it, the others start at 0)",

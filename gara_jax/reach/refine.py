@@ -126,6 +126,18 @@ def _analyse(layers, s_lo, s_hi, t_lo, t_hi, c_lo, c_hi, i_lo, i_hi, q_lo, q_hi,
 _analyse_jit = TunedJit(_analyse, static_argnames=("method", "coverage"))
 
 
+def _optional_boxes(lo, hi, name: str, shape):
+    """``lo, hi`` validated to ``shape``, or the unbounded box when both are ``None``."""
+    if (lo is None) != (hi is None):
+        raise ValueError(f"{name}: give both or neither")
+    if lo is None:
+        return np.full(shape, -np.inf), np.full(shape, np.inf)
+    lo, hi = boxes.validate_boxes(lo, hi, name)
+    if lo.shape != shape:
+        raise ValueError(f"{name}: expected shape {shape}, got {lo.shape}")
+    return lo, hi
+
+
 def _next_pow2(n: int, floor: int = 1) -> int:
     return max(floor, 1 << max(0, int(n - 1).bit_length()))
 
@@ -284,22 +296,8 @@ def refine_many(stacked_layers, start_lo, start_hi, target_lo, target_hi, *, tau
         c_lo, c_hi = boxes.validate_boxes(cover_lo, cover_hi, "cover_lo/cover_hi")
         if c_lo.shape != t_lo.shape:
             raise ValueError(f"cover_lo/cover_hi: expected shape {t_lo.shape}, got {c_lo.shape}")
-    if (input_lo is None) != (input_hi is None):
-        raise ValueError("input_lo/input_hi: give both or neither")
-    if (reach_lo is None) != (reach_hi is None):
-        raise ValueError("reach_lo/reach_hi: give both or neither")
-    if reach_lo is None:
-        q_lo, q_hi = np.full(s_lo.shape, -np.inf), np.full(s_lo.shape, np.inf)
-    else:
-        q_lo, q_hi = boxes.validate_boxes(reach_lo, reach_hi, "reach_lo/reach_hi")
-        if q_lo.shape != s_lo.shape:
-            raise ValueError(f"reach_lo/reach_hi: expected shape {s_lo.shape}, got {q_lo.shape}")
-    if input_lo is None:
-        i_lo, i_hi = np.full(s_lo.shape, -np.inf), np.full(s_lo.shape, np.inf)
-    else:
-        i_lo, i_hi = boxes.validate_boxes(input_lo, input_hi, "input_lo/input_hi")
-        if i_lo.shape != s_lo.shape:
-            raise ValueError(f"input_lo/input_hi: expected shape {s_lo.shape}, got {i_lo.shape}")
+    i_lo, i_hi = _optional_boxes(input_lo, input_hi, "input_lo/input_hi", s_lo.shape)
+    q_lo, q_hi = _optional_boxes(reach_lo, reach_hi, "reach_lo/reach_hi", s_lo.shape)
     n_jobs, dim = s_lo.shape
     if n_jobs == 0:
         return []

@@ -312,6 +312,10 @@ VARIANTS = {
         "both: the bounds clipped to the state space, and a box bisected where its halves' "
         "coverage differs most (with clipped bounds c1 is no longer near 0 everywhere)",
         {"reach_clip": "space", "split_rule": "separation"}),
+    "gara+x_cuts": (
+        "an analysis bisects along x only (split_dims=(0,)): a test of the cut table, where "
+        "x-only cuts went with the best results on big_u_maze and four_rooms",
+        {"split_dims": (0,)}),
     "gara+copy_columns": (
         "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
         "the default: only the first reaching piece keeps it, the others start at 0)",

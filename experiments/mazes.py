@@ -290,7 +290,7 @@ VARIANTS = {
         "that held it: with the reference's 'appended' order, once the U-mazes' start goal "
         "is split the wall face x = 1 passes to the right-hand goal, and pressing against "
         "the wall enters it again", {"piece_order": "parent"}),
-    # What a split costs, where it cuts, the bounds (docs/mazes.md, "Cheaper splits", "Bounds clipped").
+    # Split costs, cut rules, clipped bounds (docs/mazes.md: "Cheaper splits", "Bounds clipped").
     "gara+no_split_boost": (
         "no epsilon boost after a split (split_epsilon_boost=1, the authors' results "
         "version; the default multiplies the high level's epsilon by 1.5)",

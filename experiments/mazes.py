@@ -501,9 +501,10 @@ def goal_cuts(maze: str, lo, hi) -> str:
 def cut_table(runs: dict, maze: str) -> str:
     """Every seed of every stored GARA run on ``maze`` that starts from GARA's initial goals
     (seeds 0-19, ``initial_boxes`` unset), grouped by :func:`goal_cuts` of its final
-    partition: seeds, greedy success over the last 10 evaluations, the same seeds'
-    refinement-off agent (:func:`refinement_off`) and the mean difference. An observation,
-    not an ablation: a seed's final partition is itself an outcome of its run."""
+    partition: seeds, greedy success over the last 10 evaluations and training success over
+    the last 30k steps, each beside the same seeds' refinement-off agent
+    (:func:`refinement_off`). An observation, not an ablation: a seed's final partition is
+    itself an outcome of its run."""
     methods = runs.get(maze, {})
     groups: dict = {}
     used = 0
@@ -513,18 +514,20 @@ def cut_table(runs: dict, maze: str) -> str:
                 or not run.get("final_partitions") or run["config"].get("initial_boxes")):
             continue
         used += 1
-        mine = run["summary"]["per_seed"]["greedy_last10"]
-        theirs = methods[off]["summary"]["per_seed"]["greedy_last10"]
-        for (lo, hi), g, o in zip(run["final_partitions"], mine, theirs, strict=True):
-            groups.setdefault(goal_cuts(maze, lo, hi), []).append((g, o))
+        mine, theirs = run["summary"]["per_seed"], methods[off]["summary"]["per_seed"]
+        values = zip(mine["greedy_last10"], theirs["greedy_last10"], mine["train_last30k"],
+                     theirs["train_last30k"], strict=True)
+        for (lo, hi), v in zip(run["final_partitions"], values, strict=True):
+            groups.setdefault(goal_cuts(maze, lo, hi), []).append(v)
     lines = [f"{maze}: the final partitions of {used} GARA runs' seeds, by the initial goals "
              "they cut (in GARA's initial order)", "",
-             "| cuts | seeds | greedy, last 10 evals | refinement off, same seeds | difference |",
-             "|---|---:|---:|---:|---:|"]
+             "| cuts | seeds | greedy, last 10 evals: GARA / refinement off / difference "
+             "| training, last 30k steps: GARA / refinement off / difference |",
+             "|---|---:|---:|---:|"]
     for sig, v in sorted(groups.items(), key=lambda kv: -len(kv[1])):
-        v = np.asarray(v, float)
-        lines.append(f"| `{sig}` | {len(v)} | {v[:, 0].mean():.2f} | {v[:, 1].mean():.2f} | "
-                     f"{(v[:, 0] - v[:, 1]).mean():+.2f} |")
+        m = np.asarray(v, float).mean(0)
+        lines.append(f"| `{sig}` | {len(v)} | {m[0]:.2f} / {m[1]:.2f} / {m[0] - m[1]:+.2f} | "
+                     f"{m[2]:.2f} / {m[3]:.2f} / {m[2] - m[3]:+.2f} |")
     return "\n".join(lines)
 
 

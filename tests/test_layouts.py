@@ -436,8 +436,9 @@ def test_cut_table_groups_seeds_by_the_goals_their_final_partition_cuts():
     assert [goal_cuts("u_maze", *p) for p in (whole, right_y, left_v)] == ["- -", "- y", "v -"]
 
     def run(greedy, partitions=None, **config):
-        return {"summary": {"per_seed": {"greedy_last10": greedy}}, "config": config,
-                "final_partitions": partitions}
+        train = [1.0 - g for g in greedy]  # distinct from greedy, so a mix-up shows
+        return {"summary": {"per_seed": {"greedy_last10": greedy, "train_last30k": train}},
+                "config": config, "final_partitions": partitions}
 
     runs = {"u_maze": {
         "gara_no_refinement": run([0.5, 0.6, 0.7]),
@@ -447,6 +448,8 @@ def test_cut_table_groups_seeds_by_the_goals_their_final_partition_cuts():
         "gara+boxes": run([1.0, 1.0, 1.0], [whole] * 3, initial_boxes=[[0]]),  # left out
     }}
     rows = [r for r in cut_table(runs, "u_maze").splitlines() if r.startswith("| `")]
-    # "- -": gara seed 2 and gara+one_cut seeds 0, 2: (0.7 + 0.1 + 0.3) / 3 against (0.7 + 0.5 + 0.7) / 3.
-    assert rows == ["| `- -` | 3 | 0.37 | 0.63 | -0.27 |", "| `- y` | 2 | 0.65 | 0.55 | +0.10 |",
-                    "| `v -` | 1 | 0.20 | 0.60 | -0.40 |"]
+    # "- -": gara seed 2 and gara+one_cut seeds 0, 2: (0.7 + 0.1 + 0.3) / 3 against
+    # (0.7 + 0.5 + 0.7) / 3; training is 1 minus each.
+    assert rows == ["| `- -` | 3 | 0.37 / 0.63 / -0.27 | 0.63 / 0.37 / +0.27 |",
+                    "| `- y` | 2 | 0.65 / 0.55 / +0.10 | 0.35 / 0.45 / -0.10 |",
+                    "| `v -` | 1 | 0.20 / 0.60 / -0.40 | 0.80 / 0.40 / +0.40 |"]

@@ -320,6 +320,15 @@ VARIANTS = {
         "every piece of a split goal inherits its Q column as a target (q_columns='copy'; "
         "the default: only the first reaching piece keeps it, the others start at 0)",
         {"q_columns": "copy"}),
+    "gara+kept_q_rows": (
+        "no Q entry is zeroed at a split (q_rows_after_split='kept'): a piece found not to "
+        "reach G_d within one option keeps G_s's value for targeting G_d, which the low "
+        "level goes on pursuing over the next decisions",
+        {"q_rows_after_split": "kept"}),
+    "gara+kept_q_rows+copy_columns": (
+        "a split the high level does not see: every piece inherits G_s's Q row and column "
+        "and nothing is zeroed (q_rows_after_split='kept', q_columns='copy')",
+        {"q_rows_after_split": "kept", "q_columns": "copy"}),
 }
 ALL_METHODS = METHODS + tuple(VARIANTS)
 QUICK = {"seeds": 2, "steps": 3000, "steps_per_epoch": 1000, "eval_episodes": 2}

@@ -129,7 +129,7 @@ class _UpperReaches:
 
 def test_aliased_q_rows_share_the_zero_and_later_updates():
     results = {}
-    for mode in ("copied", "aliased_at_split", "aliased"):
+    for mode in ("copied", "aliased_at_split", "aliased", "kept"):
         seed = _split_seed(aliased=mode == "aliased")
         assert apply_split(seed, 0, 1, _UpperReaches, "reference", mode) == "split"
         results[mode] = seed
@@ -137,6 +137,12 @@ def test_aliased_q_rows_share_the_zero_and_later_updates():
     copied = results["copied"]["q"]
     np.testing.assert_allclose(copied[[0, 2, 3], 0], 0.1)
     np.testing.assert_allclose(copied[[0, 2, 3], 1], [0.2, 0.0, 0.0])
+    # "kept": no piece loses G_s's value towards the target, though the marks still say
+    # which pieces were found not to reach it.
+    kept = results["kept"]
+    np.testing.assert_allclose(kept["q"][[0, 2, 3], 1], 0.2)
+    np.testing.assert_allclose(kept["q"][[0, 2, 3], 0], 0.1)
+    assert kept["unreachable"][[2, 3], 1].all() and kept["reachable"][0, 1]
     for mode in ("aliased_at_split", "aliased"):
         q = results[mode]["q"]
         # Q[non-reaching piece][1] = 0 on one shared row: G_s's index and every piece lose it.

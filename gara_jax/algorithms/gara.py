@@ -63,7 +63,7 @@ Q_COLUMNS = ("copy", "reference", "zero")
 SELF_TARGETS = ("always", "exit_goal")
 PIECE_ORDERS = ("appended", "parent")
 COVERAGE_RULES = ("final", "results")
-Q_ROWS_AFTER_SPLIT = ("copied", "aliased_at_split", "aliased")
+Q_ROWS_AFTER_SPLIT = ("copied", "aliased_at_split", "aliased", "kept")
 PAIR_COUNTS = ("memory", "cumulative")
 RECORDS_AFTER_SPLIT = ("cleared", "kept")
 RELABEL_COUNTS = ("none", "move", "add")
@@ -474,7 +474,11 @@ class GaraConfig(HandcraftedConfig):
             (:class:`~gara_jax.agents.high_level.HighState` ``alias``), every later Q update
             written into one row of a group is written into all of them, and pieces of a
             later split of a member join the same group (the later copy never comes). The
-            two bracket the unknown.
+            two bracket the unknown. ``"kept"`` (this project's option, not the authors'):
+            every piece's row is a copy of ``G_s``'s and nothing is zeroed, so a piece found
+            not to reach ``d`` within one option keeps the value learned for targeting ``d``
+            from ``G_s`` (the low level keeps pursuing a target over the next decisions, so
+            "not in one option" is not "never"); the non-reaching marks are set as before.
         pair_counts: the experience count the trigger reads (SPEC.md sections 3.5, 3.9.3).
             ``"memory"`` (this project's first reading): recomputed at each host step from the
             high-level memory (the summed ``length`` of the pair's rows, goals located from the

@@ -626,7 +626,7 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy",
       non-reaching pieces' entries; ``"aliased_at_split"`` zeroes ``Q[g, d]`` for every piece
       ``g`` once any piece does not reach (the rows are one object in the reference);
       ``"aliased"`` also puts the pieces into ``G_s``'s alias group (``seed["alias"]``) and
-      zeroes the whole group's entries.
+      zeroes the whole group's entries; ``"kept"`` zeroes nothing.
     - Planner graph: rows and columns copied; then the edge ``piece -> d`` is set for reaching
       pieces and removed for non-reaching ones.
     - Reachability marks: a piece's *row* (the piece as a start) inherits ``G_s``'s verdicts
@@ -710,7 +710,7 @@ def apply_split(seed: dict, s: int, d: int, result, q_columns: str = "copy",
         hits = n < n_reach
         seed["reachable"][p, d], seed["unreachable"][p, d] = hits, not hits
         succ[p, d] = hits
-        if not hits:
+        if not hits and q_rows != "kept":
             # The reference's rows are one object: the zero reaches every row of the group.
             q[group if q_rows != "copied" else p, d] = 0.0
     return "split"

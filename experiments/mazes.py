@@ -67,6 +67,11 @@ _NO_FILLER = ("the filler box [0,6]x[3,6] (added to the authors' partition to ma
 _FINAL_RULES = ("the authors' final collision rules (collision='final', SPEC.md 1), under which "
                 "big_u_maze's corners (4, 3) and (4.5, 3) are no longer absorbing; the same "
                 "for every method", {"collision": "final"})
+# What the two k = 10 variants (GARA, refinement off) change.
+_K10 = ("the high level decides every 10 steps, not 5 (k=10; SPEC.md 3.1: 5), so each option, "
+        "the forward model's horizon and the analysed hop are twice as long: a lead for bounds "
+        "that a goal's whole velocity range widens, since over a longer option the low level's "
+        "target, not the start velocity, decides where it ends", {"k": 10})
 # What the two Planning variants (GARA, refinement off) change.
 _PLANNING = ("the Planning high level (planning=True, the paper's other high level): a "
              "shortest path over the goal transitions seen to succeed, towards the goal where "
@@ -325,6 +330,13 @@ VARIANTS = {
         "reach G_d within one option keeps G_s's value for targeting G_d, which the low "
         "level goes on pursuing over the next decisions",
         {"q_rows_after_split": "kept"}),
+    "gara+space_clip+kept_q_rows": (
+        "the bounds clipped to the state space (reach_clip='space', which makes the analysis "
+        "cut the start's goal in most seeds) and no Q entry zeroed at a split "
+        "(q_rows_after_split='kept', which removes what those cuts cost)",
+        {"reach_clip": "space", "q_rows_after_split": "kept"}),
+    "gara+k10": _K10,
+    "gara_no_refinement+k10": (*_K10, "gara_no_refinement"),
     "gara+kept_q_rows+copy_columns": (
         "a split the high level does not see: every piece inherits G_s's Q row and column "
         "and nothing is zeroed (q_rows_after_split='kept', q_columns='copy')",
